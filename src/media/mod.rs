@@ -1,0 +1,7 @@
+//! Participating media: what the scene file describes ([`MediumDesc`]) and the combined
+//! extinction field the transport code samples ([`Media`]).
+pub mod homogeneous;
+pub mod phase;
+
+pub use homogeneous::{Media, MediumDesc};
+pub use phase::Phase;

@@ -1,0 +1,129 @@
+//! Scene import: every source (TOML scene file, OBJ, glTF) ends up as one [`Scene`].
+//!
+//! Units: metres, radiometric (W, W/sr, W/m^2, W/(m^2 sr)); right-handed, +Y up.
+pub mod gltf;
+pub mod obj;
+pub mod toml;
+
+use glam::Vec3;
+
+use crate::media::MediumDesc;
+
+/// Linear RGB triple (radiance, power, reflectance, albedo).
+pub type Rgb = Vec3;
+
+/// Pinhole camera as SPEC.md defines it (vertical field of view).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub origin: Vec3,
+    pub target: Vec3,
+    pub up: Vec3,
+    /// Vertical field of view, degrees.
+    pub vfov_deg: f32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Material {
+    /// Diffuse, BRDF = reflectance / pi, reflects on both sides.
+    Lambert { reflectance: Rgb },
+    /// Smooth Fresnel dielectric (exterior IOR 1), clear inside.
+    Dielectric { ior: f32 },
+    /// Perfect specular reflector.
+    Mirror { reflectance: Rgb },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedMaterial {
+    pub name: String,
+    pub material: Material,
+}
+
+/// Triangle mesh in world space.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (same length as `positions`), or empty for flat shading.
+    pub normals: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Index into the material list of whatever holds the mesh ([`Imported`] or [`Scene`]).
+    pub material: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Isotropic point light, radiant intensity W/sr.
+    Point { position: Vec3, intensity: Rgb },
+    /// Spot light: intensity W/sr on the axis, full inside `inner_deg`, falling linearly in
+    /// cos(angle) to zero at `outer_deg` (half-angles, degrees).
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Rgb,
+        inner_deg: f32,
+        outer_deg: f32,
+    },
+    /// Delta direction of travel, irradiance W/m^2 on a plane perpendicular to it.
+    Directional { direction: Vec3, irradiance: Rgb },
+    /// Opaque black sphere emitting uniform radiance W/(m^2 sr) outward; visible to the camera.
+    Sphere {
+        center: Vec3,
+        radius: f32,
+        radiance: Rgb,
+    },
+}
+
+/// What one imported file (OBJ, glTF) contributes; mesh materials index `materials`.
+#[derive(Clone, Debug, Default)]
+pub struct Imported {
+    pub materials: Vec<NamedMaterial>,
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub camera: Option<Camera>,
+}
+
+/// Everything the renderer needs, in world space.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    pub camera: Camera,
+    pub materials: Vec<NamedMaterial>,
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub media: Vec<MediumDesc>,
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Camera {
+            origin: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 40.0,
+        }
+    }
+}
+
+impl Light {
+    /// Total emitted power (W per channel); `scene_radius` bounds what a directional light lights.
+    pub fn power(&self, scene_radius: f32) -> Rgb {
+        use std::f32::consts::PI;
+        match *self {
+            Light::Point { intensity, .. } => intensity * 4.0 * PI,
+            Light::Spot {
+                intensity,
+                inner_deg,
+                outer_deg,
+                ..
+            } => {
+                // Linear falloff in cos: the cone's mean is the midpoint of the two cosines.
+                let ci = inner_deg.to_radians().cos();
+                let co = outer_deg.to_radians().cos();
+                intensity * 2.0 * PI * (1.0 - 0.5 * (ci + co))
+            }
+            Light::Directional { irradiance, .. } => irradiance * PI * scene_radius * scene_radius,
+            Light::Sphere {
+                radius, radiance, ..
+            } => radiance * PI * 4.0 * PI * radius * radius,
+        }
+    }
+}
