@@ -1,0 +1,178 @@
+//! Homogeneous media: index-matched axis-aligned boxes of constant coefficients.
+//! Overlapping media add their extinction; a collision is attributed to one medium with
+//! probability sigma_t_i / sigma_t, which then decides albedo and phase function.
+use glam::Vec3;
+use smallvec::SmallVec;
+
+use super::Phase;
+use crate::geometry::Ray;
+use crate::scene::Rgb;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct MediumDesc {
+    /// Axis-aligned box [min, max] the medium fills (m).
+    pub bounds: [Vec3; 2],
+    /// Extinction coefficient (1/m), grey.
+    pub sigma_t: f32,
+    /// Single-scattering albedo sigma_s / sigma_t per channel.
+    pub albedo: Rgb,
+    pub phase: Phase,
+}
+
+/// A ray interval of constant total extinction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    pub t0: f32,
+    pub t1: f32,
+    pub sigma_t: f32,
+}
+
+/// Ray pieces, kept on the stack for the usual handful of media.
+pub type Segments = SmallVec<[Segment; 4]>;
+
+/// All media of a scene, queried as one extinction field.
+#[derive(Clone, Debug, Default)]
+pub struct Media {
+    pub media: Vec<MediumDesc>,
+}
+
+/// Parametric overlap of a ray with a box, clipped to [tmin, tmax].
+pub fn ray_box(ray: &Ray, b: &[Vec3; 2], tmin: f32, tmax: f32) -> Option<(f32, f32)> {
+    let inv = ray.d.recip();
+    let t0 = (b[0] - ray.o) * inv;
+    let t1 = (b[1] - ray.o) * inv;
+    let near = t0.min(t1).max_element().max(tmin);
+    let far = t0.max(t1).min_element().min(tmax);
+    (near < far).then_some((near, far))
+}
+
+impl Media {
+    pub fn new(media: Vec<MediumDesc>) -> Self {
+        Media { media }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.media.is_empty()
+    }
+
+    /// Union of the media boxes, if any.
+    pub fn bounds(&self) -> Option<[Vec3; 2]> {
+        self.media.iter().fold(None, |acc, m| {
+            Some(match acc {
+                None => m.bounds,
+                Some([lo, hi]) => [lo.min(m.bounds[0]), hi.max(m.bounds[1])],
+            })
+        })
+    }
+
+    /// The constant-extinction pieces of the ray inside any medium, front to back.
+    pub fn segments(&self, ray: &Ray, tmax: f32) -> Segments {
+        let spans: SmallVec<[(f32, f32, f32); 4]> = self
+            .media
+            .iter()
+            .filter_map(|m| ray_box(ray, &m.bounds, 0.0, tmax).map(|(a, b)| (a, b, m.sigma_t)))
+            .collect();
+        let mut cuts: SmallVec<[f32; 8]> = spans.iter().flat_map(|s| [s.0, s.1]).collect();
+        cuts.sort_by(f32::total_cmp);
+        let mut out = Segments::new();
+        push_pieces(&cuts, &spans, &mut out);
+        out
+    }
+
+    /// Integral of sigma_t along the ray over [t0, t1].
+    pub fn optical_depth(&self, ray: &Ray, t0: f32, t1: f32) -> f32 {
+        self.media
+            .iter()
+            .filter_map(|m| ray_box(ray, &m.bounds, t0, t1).map(|(a, b)| (b - a) * m.sigma_t))
+            .sum()
+    }
+
+    pub fn sigma_t(&self, p: Vec3) -> f32 {
+        self.media
+            .iter()
+            .filter(|m| contains(&m.bounds, p))
+            .map(|m| m.sigma_t)
+            .sum()
+    }
+
+    /// sum_i sigma_s,i(p) * phase_i(cos): what a beam estimate multiplies by (1/(m sr)).
+    pub fn in_scatter(&self, p: Vec3, cos_theta: f32) -> Rgb {
+        self.media
+            .iter()
+            .filter(|m| contains(&m.bounds, p))
+            .map(|m| m.albedo * (m.sigma_t * m.phase.eval(cos_theta)))
+            .fold(Vec3::ZERO, |a, b| a + b)
+    }
+
+    /// The medium a collision at `p` belongs to, chosen with probability sigma_t,i / sigma_t.
+    pub fn pick_collider(&self, p: Vec3, u: f32) -> Option<&MediumDesc> {
+        let total = self.sigma_t(p);
+        let mut target = u * total;
+        let mut last = None;
+        for m in self.media.iter().filter(|m| contains(&m.bounds, p)) {
+            last = Some(m);
+            if target < m.sigma_t {
+                return Some(m);
+            }
+            target -= m.sigma_t;
+        }
+        last
+    }
+}
+
+fn contains(b: &[Vec3; 2], p: Vec3) -> bool {
+    p.cmpge(b[0]).all() && p.cmple(b[1]).all()
+}
+
+fn push_pieces(cuts: &[f32], spans: &[(f32, f32, f32)], out: &mut Segments) {
+    for w in cuts.windows(2) {
+        let (t0, t1) = (w[0], w[1]);
+        if t1 <= t0 {
+            continue;
+        }
+        let mid = 0.5 * (t0 + t1);
+        let sigma_t: f32 = spans
+            .iter()
+            .filter(|s| s.0 <= mid && mid <= s.1)
+            .map(|s| s.2)
+            .sum();
+        if sigma_t > 0.0 {
+            match out.last_mut() {
+                Some(last) if last.t1 == t0 && last.sigma_t == sigma_t => last.t1 = t1,
+                _ => out.push(Segment { t0, t1, sigma_t }),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fog(lo: [f32; 3], hi: [f32; 3], s: f32) -> MediumDesc {
+        MediumDesc {
+            bounds: [Vec3::from(lo), Vec3::from(hi)],
+            sigma_t: s,
+            albedo: Vec3::ONE,
+            phase: Phase::ISOTROPIC,
+        }
+    }
+
+    #[test]
+    fn overlapping_media_add() {
+        let media = Media::new(vec![
+            fog([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], 1.0),
+            fog([0.0, -1.0, -1.0], [3.0, 1.0, 1.0], 2.0),
+        ]);
+        let ray = Ray::new(Vec3::new(-5.0, 0.0, 0.0), Vec3::X);
+        let seg = media.segments(&ray, 100.0);
+        let expect = [(4.0, 5.0, 1.0), (5.0, 6.0, 3.0), (6.0, 8.0, 2.0)];
+        assert_eq!(seg.len(), 3);
+        for (s, e) in seg.iter().zip(expect) {
+            assert!((s.t0 - e.0).abs() < 1e-5 && (s.t1 - e.1).abs() < 1e-5 && s.sigma_t == e.2);
+        }
+        let tau = media.optical_depth(&ray, 0.0, 100.0);
+        assert!((tau - (2.0 + 6.0)).abs() < 1e-4);
+        assert_eq!(media.sigma_t(Vec3::new(0.5, 0.0, 0.0)), 3.0);
+    }
+}

@@ -1,0 +1,151 @@
+//! One progressive pass = light tracing (beams + photons) then a camera pass that
+//! estimates radiance from them; [`Renderer`] holds what stays fixed across passes.
+use glam::Vec3;
+use std::time::Instant;
+
+use crate::error::{Error, Result};
+use crate::estimate::{beams::BeamMap, photons::PhotonMap, radius};
+use crate::geometry::Geometry;
+use crate::media::Media;
+use crate::scene::{Rgb, Scene};
+use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
+use crate::transport::camera::{CameraTracer, Pinhole};
+use crate::transport::freepath::Analytic;
+use crate::transport::light::{LightSampler, LightTracer};
+use crate::transport::Counters;
+
+pub struct Renderer {
+    pub settings: RenderSettings,
+    geometry: Geometry,
+    media: Media,
+    lights: LightSampler,
+    camera: Pinhole,
+    /// R1 of the beams and of the photons (m).
+    pub beam_r1: f32,
+    pub photon_r1: f32,
+    /// Whether camera paths can continue past a surface (then later camera segments need
+    /// the beam BVH).
+    has_specular: bool,
+}
+
+/// Wall-clock seconds of one pass's stages.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Timings {
+    pub light_tracing: f64,
+    pub build_maps: f64,
+    pub camera_and_estimate: f64,
+}
+
+impl Timings {
+    pub fn add(&mut self, o: &Timings) {
+        self.light_tracing += o.light_tracing;
+        self.build_maps += o.build_maps;
+        self.camera_and_estimate += o.camera_and_estimate;
+    }
+}
+
+pub struct PassResult {
+    pub image: Vec<Rgb>,
+    pub counters: Counters,
+    pub timings: Timings,
+}
+
+impl Renderer {
+    pub fn new(scene: &Scene, settings: RenderSettings) -> Result<Self> {
+        let geometry = Geometry::new(scene)?;
+        let media = Media::new(scene.media.clone());
+        let camera = Pinhole::new(&scene.camera, settings.width, settings.height);
+        let bounds = union(geometry.bounds(), media.bounds()).ok_or_else(|| {
+            Error::Other("the scene has neither surfaces nor media to light".into())
+        })?;
+        let lights = LightSampler::new(&scene.lights, bounds);
+        if lights.total_power().max_element() <= 0.0 {
+            return Err(Error::Other("the lights emit no power".into()));
+        }
+        let auto = |b: Option<[Vec3; 2]>, pixels: f32| {
+            let c = b.map_or(0.5 * (bounds[0] + bounds[1]), |b| 0.5 * (b[0] + b[1]));
+            pixels * camera.pixel_footprint((c - camera.origin()).length().max(1e-3))
+        };
+        let beam_r1 = match settings.beam_radius {
+            Radius::Fixed(r) => r,
+            Radius::Auto => auto(media.bounds(), AUTO_BEAM_PIXELS),
+        };
+        let photon_r1 = match settings.photon_radius {
+            Radius::Fixed(r) => r,
+            Radius::Auto => auto(geometry.bounds(), AUTO_PHOTON_PIXELS),
+        };
+        let has_specular = scene
+            .materials
+            .iter()
+            .any(|m| !matches!(m.material, crate::scene::Material::Lambert { .. }));
+        Ok(Renderer {
+            has_specular,
+            settings,
+            geometry,
+            media,
+            lights,
+            camera,
+            beam_r1,
+            photon_r1,
+        })
+    }
+
+    /// Renders pass `i` (1-based).
+    pub fn pass(&self, i: u32) -> PassResult {
+        let s = &self.settings;
+        let free_path = Analytic { media: &self.media };
+        let t0 = Instant::now();
+        let lt = LightTracer {
+            lights: &self.lights,
+            geometry: &self.geometry,
+            media: &self.media,
+            free_path: &free_path,
+        };
+        let light = lt.trace_pass(s.seed, i, s.beams_per_pass);
+        let t1 = Instant::now();
+        let beam_r = radius::beam_radius(self.beam_r1, i, s.alpha);
+        let beam_map = self
+            .has_specular
+            .then(|| BeamMap::build(&light.beams, beam_r));
+        let photons = PhotonMap::build(
+            &light.photons,
+            radius::photon_radius(self.photon_r1, i, s.alpha),
+        );
+        let t2 = Instant::now();
+        let ct = CameraTracer {
+            camera: &self.camera,
+            geometry: &self.geometry,
+            media: &self.media,
+            free_path: &free_path,
+            beams: &light.beams,
+            beam_map: beam_map.as_ref(),
+            beam_radius: beam_r,
+            photons: &photons,
+        };
+        let (image, cam_counters) = ct.trace_pass(s.seed, i);
+        let t3 = Instant::now();
+        let mut counters = light.counters;
+        counters.add(&cam_counters);
+        PassResult {
+            image,
+            counters,
+            timings: Timings {
+                light_tracing: (t1 - t0).as_secs_f64(),
+                build_maps: (t2 - t1).as_secs_f64(),
+                camera_and_estimate: (t3 - t2).as_secs_f64(),
+            },
+        }
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.geometry.triangle_count()
+    }
+}
+
+fn union(a: Option<[Vec3; 2]>, b: Option<[Vec3; 2]>) -> Option<[Vec3; 2]> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some([a[0].min(b[0]), a[1].max(b[1])]),
+        (a, None) => a,
+        (None, b) => b,
+    }
+}

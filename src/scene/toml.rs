@@ -1,0 +1,521 @@
+//! The TOML scene file. Relative paths resolve against the file's folder; unknown keys are
+//! errors; every value is checked and a bad one is reported as `file: field: problem`.
+use glam::Vec3;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+use super::{Camera, Imported, Light, Material, NamedMaterial, Scene};
+use crate::error::{Error, Result};
+use crate::media::{MediumDesc, Phase};
+use crate::settings::{Radius, RenderSettings};
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileScene {
+    #[serde(default)]
+    render: FileRender,
+    camera: Option<FileCamera>,
+    #[serde(default)]
+    material: Vec<FileMaterial>,
+    #[serde(default)]
+    mesh: Vec<FileMesh>,
+    #[serde(default)]
+    import: Vec<FileImport>,
+    #[serde(default)]
+    light: Vec<FileLight>,
+    #[serde(default)]
+    medium: Vec<FileMedium>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileRender {
+    width: Option<u32>,
+    height: Option<u32>,
+    passes: Option<u32>,
+    beams_per_pass: Option<usize>,
+    alpha: Option<f32>,
+    beam_radius: Option<FileRadius>,
+    photon_radius: Option<FileRadius>,
+    seed: Option<u64>,
+    exposure: Option<f32>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum FileRadius {
+    Value(f32),
+    Word(String),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileCamera {
+    origin: [f32; 3],
+    target: [f32; 3],
+    up: Option<[f32; 3]>,
+    vfov: f32,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+enum FileMaterial {
+    Lambert {
+        name: String,
+        reflectance: [f32; 3],
+    },
+    Dielectric {
+        name: String,
+        ior: Option<f32>,
+    },
+    Mirror {
+        name: String,
+        reflectance: Option<[f32; 3]>,
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileMesh {
+    path: PathBuf,
+    material: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileImport {
+    path: PathBuf,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+enum FileLight {
+    Point {
+        position: [f32; 3],
+        intensity: [f32; 3],
+    },
+    Spot {
+        position: [f32; 3],
+        direction: [f32; 3],
+        intensity: [f32; 3],
+        inner_deg: Option<f32>,
+        outer_deg: Option<f32>,
+    },
+    Directional {
+        direction: [f32; 3],
+        irradiance: [f32; 3],
+    },
+    Sphere {
+        center: [f32; 3],
+        radius: f32,
+        radiance: [f32; 3],
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+enum FileMedium {
+    Homogeneous {
+        bounds: [[f32; 3]; 2],
+        sigma_t: f32,
+        albedo: [f32; 3],
+        phase: Option<FilePhase>,
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+enum FilePhase {
+    Isotropic,
+    Hg { g: f32 },
+}
+
+/// A parsed scene file: settings from `[render]` and the assembled scene.
+pub struct SceneFile {
+    pub path: PathBuf,
+    pub settings: RenderSettings,
+    pub scene: Scene,
+    /// Every file the scene read (the scene file first), for watching and cache keys.
+    pub sources: Vec<PathBuf>,
+}
+
+/// Checks of one value, each returning the field's error.
+struct Check<'a> {
+    path: &'a Path,
+}
+
+impl Check<'_> {
+    fn err(&self, field: &str, msg: String) -> Error {
+        Error::field(self.path, field, msg)
+    }
+    fn finite3(&self, field: &str, v: [f32; 3]) -> Result<Vec3> {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(Vec3::from(v))
+        } else {
+            Err(self.err(field, format!("expected finite numbers, got {v:?}")))
+        }
+    }
+    fn nonneg3(&self, field: &str, v: [f32; 3]) -> Result<Vec3> {
+        if v.iter().all(|x| x.is_finite() && *x >= 0.0) {
+            Ok(Vec3::from(v))
+        } else {
+            Err(self.err(field, format!("expected finite numbers >= 0, got {v:?}")))
+        }
+    }
+    fn unit3(&self, field: &str, v: [f32; 3]) -> Result<Vec3> {
+        let v = self.finite3(field, v)?;
+        if v.length_squared() > 0.0 {
+            Ok(v.normalize())
+        } else {
+            Err(self.err(field, "expected a non-zero direction".into()))
+        }
+    }
+    fn in_range(&self, field: &str, x: f32, lo: f32, hi: f32, what: &str) -> Result<f32> {
+        if x.is_finite() && x >= lo && x <= hi {
+            Ok(x)
+        } else {
+            Err(self.err(field, format!("expected {what}, got {x}")))
+        }
+    }
+    fn positive(&self, field: &str, x: f32) -> Result<f32> {
+        if x.is_finite() && x > 0.0 {
+            Ok(x)
+        } else {
+            Err(self.err(field, format!("expected a finite number > 0, got {x}")))
+        }
+    }
+}
+
+/// 1-based line of a byte offset, for parse errors.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+pub fn load(path: &Path) -> Result<SceneFile> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse(path, &text)
+}
+
+/// Parses scene text as if it were the file at `path` (its folder resolves relative paths).
+pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
+    let file: FileScene = ::toml::from_str(text).map_err(|e| {
+        let line = e.span().map(|s| line_of(text, s.start));
+        let msg = e.message().replace('\n', " ");
+        match line {
+            Some(l) => Error::format(path, format!("line {l}: {msg}")),
+            None => Error::format(path, msg),
+        }
+    })?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let ck = Check { path };
+    let settings = render_settings(&ck, &file.render)?;
+    let mut scene = Scene::default();
+    let mut sources = vec![path.to_path_buf()];
+    for (i, m) in file.material.iter().enumerate() {
+        scene.materials.push(material(&ck, i, m)?);
+    }
+    let mut camera = None;
+    for (i, imp) in file.import.iter().enumerate() {
+        let p = dir.join(&imp.path);
+        let imported = load_asset(&p, &format!("import[{i}].path"), path)?;
+        sources.push(p);
+        camera = camera.or(imported.camera);
+        merge(&mut scene, imported, None);
+    }
+    for (i, m) in file.mesh.iter().enumerate() {
+        let p = dir.join(&m.path);
+        let imported = load_asset(&p, &format!("mesh[{i}].path"), path)?;
+        sources.push(p);
+        let over = match &m.material {
+            Some(name) => Some(find_material(&ck, &scene, i, name)?),
+            None => None,
+        };
+        merge(&mut scene, imported, over);
+    }
+    for (i, l) in file.light.iter().enumerate() {
+        scene.lights.push(light(&ck, i, l)?);
+    }
+    for (i, m) in file.medium.iter().enumerate() {
+        scene.media.push(medium(&ck, i, m)?);
+    }
+    scene.camera = match (&file.camera, camera) {
+        (Some(c), _) => camera_from(&ck, c)?,
+        (None, Some(c)) => c,
+        (None, None) => {
+            return Err(Error::field(
+                path,
+                "camera",
+                "no [camera] table and no camera in an imported glTF",
+            ))
+        }
+    };
+    if scene.lights.is_empty() {
+        return Err(Error::field(path, "light", "the scene has no light"));
+    }
+    Ok(SceneFile {
+        path: path.to_path_buf(),
+        settings,
+        scene,
+        sources,
+    })
+}
+
+fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
+    let d = RenderSettings::default();
+    let radius = |field: &str, v: &Option<FileRadius>| -> Result<Radius> {
+        match v {
+            None => Ok(Radius::Auto),
+            Some(FileRadius::Word(w)) if w == "auto" => Ok(Radius::Auto),
+            Some(FileRadius::Word(w)) => Err(ck.err(
+                field,
+                format!("expected \"auto\" or a radius in m, got \"{w}\""),
+            )),
+            Some(FileRadius::Value(x)) => Ok(Radius::Fixed(ck.positive(field, *x)?)),
+        }
+    };
+    let s = RenderSettings {
+        width: r.width.unwrap_or(d.width),
+        height: r.height.unwrap_or(d.height),
+        passes: r.passes.unwrap_or(d.passes),
+        beams_per_pass: r.beams_per_pass.unwrap_or(d.beams_per_pass),
+        alpha: r.alpha.unwrap_or(d.alpha),
+        beam_radius: radius("render.beam_radius", &r.beam_radius)?,
+        photon_radius: radius("render.photon_radius", &r.photon_radius)?,
+        seed: r.seed.unwrap_or(d.seed),
+        exposure: r.exposure.unwrap_or(d.exposure),
+    };
+    for (field, v) in [("render.width", s.width), ("render.height", s.height)] {
+        if v == 0 || v > 16384 {
+            return Err(ck.err(field, format!("expected 1..=16384 pixels, got {v}")));
+        }
+    }
+    if s.beams_per_pass == 0 {
+        return Err(ck.err("render.beams_per_pass", "expected at least 1".into()));
+    }
+    if !(s.alpha > 0.0 && s.alpha < 1.0) {
+        return Err(ck.err(
+            "render.alpha",
+            format!("expected a number in (0, 1), got {}", s.alpha),
+        ));
+    }
+    if !s.exposure.is_finite() {
+        return Err(ck.err("render.exposure", "expected a finite number".into()));
+    }
+    Ok(s)
+}
+
+fn material(ck: &Check, i: usize, m: &FileMaterial) -> Result<NamedMaterial> {
+    let f = |k: &str| format!("material[{i}].{k}");
+    let (name, material) = match m {
+        FileMaterial::Lambert { name, reflectance } => {
+            let r = ck.nonneg3(&f("reflectance"), *reflectance)?;
+            if r.max_element() > 1.0 {
+                return Err(ck.err(
+                    &f("reflectance"),
+                    format!("expected values in [0, 1], got {reflectance:?}"),
+                ));
+            }
+            (name, Material::Lambert { reflectance: r })
+        }
+        FileMaterial::Dielectric { name, ior } => {
+            let ior = ck.positive(&f("ior"), ior.unwrap_or(1.5))?;
+            (name, Material::Dielectric { ior })
+        }
+        FileMaterial::Mirror { name, reflectance } => {
+            let r = ck.nonneg3(&f("reflectance"), reflectance.unwrap_or([1.0; 3]))?;
+            (
+                name,
+                Material::Mirror {
+                    reflectance: r.min(Vec3::ONE),
+                },
+            )
+        }
+    };
+    Ok(NamedMaterial {
+        name: name.clone(),
+        material,
+    })
+}
+
+fn find_material(ck: &Check, scene: &Scene, i: usize, name: &str) -> Result<usize> {
+    scene
+        .materials
+        .iter()
+        .position(|m| m.name == name)
+        .ok_or_else(|| {
+            let known: Vec<&str> = scene.materials.iter().map(|m| m.name.as_str()).collect();
+            ck.err(
+                &format!("mesh[{i}].material"),
+                format!(
+                    "unknown material \"{name}\" (defined: {})",
+                    known.join(", ")
+                ),
+            )
+        })
+}
+
+fn load_asset(p: &Path, field: &str, scene_path: &Path) -> Result<Imported> {
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let imported = match ext.as_str() {
+        "obj" => super::obj::load_obj(p)?,
+        "gltf" | "glb" => super::gltf::load_gltf(p)?,
+        _ => {
+            return Err(Error::field(
+                scene_path,
+                field,
+                format!("{}: expected a .obj, .gltf or .glb file", p.display()),
+            ))
+        }
+    };
+    if imported.meshes.iter().all(|m| m.triangles.is_empty()) && imported.lights.is_empty() {
+        return Err(Error::format(p, "the file holds no triangles"));
+    }
+    Ok(imported)
+}
+
+/// Appends an imported file's materials, meshes and lights to the scene; `over` replaces
+/// every mesh's material.
+fn merge(scene: &mut Scene, imported: Imported, over: Option<usize>) {
+    let base = scene.materials.len();
+    if over.is_none() {
+        scene.materials.extend(imported.materials);
+    }
+    for mut m in imported.meshes {
+        m.material = over.unwrap_or(base + m.material);
+        scene.meshes.push(m);
+    }
+    scene.lights.extend(imported.lights);
+}
+
+fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
+    let f = |k: &str| format!("light[{i}].{k}");
+    Ok(match l {
+        FileLight::Point {
+            position,
+            intensity,
+        } => Light::Point {
+            position: ck.finite3(&f("position"), *position)?,
+            intensity: ck.nonneg3(&f("intensity"), *intensity)?,
+        },
+        FileLight::Spot {
+            position,
+            direction,
+            intensity,
+            inner_deg,
+            outer_deg,
+        } => {
+            let outer = ck.in_range(
+                &f("outer_deg"),
+                outer_deg.unwrap_or(45.0),
+                0.01,
+                180.0,
+                "an angle in (0, 180] degrees",
+            )?;
+            let inner = ck.in_range(
+                &f("inner_deg"),
+                inner_deg.unwrap_or(0.0),
+                0.0,
+                outer,
+                "an angle in [0, outer_deg]",
+            )?;
+            Light::Spot {
+                position: ck.finite3(&f("position"), *position)?,
+                direction: ck.unit3(&f("direction"), *direction)?,
+                intensity: ck.nonneg3(&f("intensity"), *intensity)?,
+                inner_deg: inner,
+                outer_deg: outer,
+            }
+        }
+        FileLight::Directional {
+            direction,
+            irradiance,
+        } => Light::Directional {
+            direction: ck.unit3(&f("direction"), *direction)?,
+            irradiance: ck.nonneg3(&f("irradiance"), *irradiance)?,
+        },
+        FileLight::Sphere {
+            center,
+            radius,
+            radiance,
+        } => Light::Sphere {
+            center: ck.finite3(&f("center"), *center)?,
+            radius: ck.positive(&f("radius"), *radius)?,
+            radiance: ck.nonneg3(&f("radiance"), *radiance)?,
+        },
+    })
+}
+
+fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<MediumDesc> {
+    let f = |k: &str| format!("medium[{i}].{k}");
+    let FileMedium::Homogeneous {
+        bounds,
+        sigma_t,
+        albedo,
+        phase,
+    } = m;
+    let lo = ck.finite3(&f("bounds"), bounds[0])?;
+    let hi = ck.finite3(&f("bounds"), bounds[1])?;
+    if !lo.cmplt(hi).all() {
+        return Err(ck.err(
+            &f("bounds"),
+            format!("expected min < max on every axis, got {bounds:?}"),
+        ));
+    }
+    let sigma_t = ck.in_range(
+        &f("sigma_t"),
+        *sigma_t,
+        0.0,
+        f32::MAX,
+        "a finite number >= 0 (1/m)",
+    )?;
+    let albedo = ck.nonneg3(&f("albedo"), *albedo)?;
+    if albedo.max_element() > 1.0 {
+        return Err(ck.err(
+            &f("albedo"),
+            format!("expected values in [0, 1], got {albedo:?}"),
+        ));
+    }
+    let phase = match phase {
+        None | Some(FilePhase::Isotropic) => Phase::ISOTROPIC,
+        Some(FilePhase::Hg { g }) => Phase {
+            g: ck.in_range(&f("phase.g"), *g, -0.999, 0.999, "g in (-1, 1)")?,
+        },
+    };
+    Ok(MediumDesc {
+        bounds: [lo, hi],
+        sigma_t,
+        albedo,
+        phase,
+    })
+}
+
+fn camera_from(ck: &Check, c: &FileCamera) -> Result<Camera> {
+    let origin = ck.finite3("camera.origin", c.origin)?;
+    let target = ck.finite3("camera.target", c.target)?;
+    let up = ck.unit3("camera.up", c.up.unwrap_or([0.0, 1.0, 0.0]))?;
+    if (target - origin).length_squared() == 0.0 {
+        return Err(ck.err("camera.target", "must differ from camera.origin".into()));
+    }
+    if (target - origin).normalize().cross(up).length_squared() < 1e-8 {
+        return Err(ck.err(
+            "camera.up",
+            "must not be parallel to the view direction".into(),
+        ));
+    }
+    let vfov_deg = ck.in_range(
+        "camera.vfov",
+        c.vfov,
+        0.01,
+        179.0,
+        "a vertical field of view in (0, 179] degrees",
+    )?;
+    Ok(Camera {
+        origin,
+        target,
+        up,
+        vfov_deg,
+    })
+}

@@ -1,0 +1,46 @@
+//! Render settings: what the `[render]` table and the command line control.
+
+/// A progressive radius: derived from the scene, or a fixed world-space R1 (m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Radius {
+    Auto,
+    Fixed(f32),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Number of progressive passes (each: one light pass + one camera pass).
+    pub passes: u32,
+    /// Light paths traced per pass.
+    pub beams_per_pass: usize,
+    /// Radius reduction parameter of eq. 3, in (0, 1).
+    pub alpha: f32,
+    pub beam_radius: Radius,
+    pub photon_radius: Radius,
+    pub seed: u64,
+    /// PNG preview exposure in stops.
+    pub exposure: f32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            width: 256,
+            height: 256,
+            passes: 64,
+            beams_per_pass: 100_000,
+            alpha: 0.9,
+            beam_radius: Radius::Auto,
+            photon_radius: Radius::Auto,
+            seed: 1,
+            exposure: 0.0,
+        }
+    }
+}
+
+/// Auto beam radius R1, in pixel footprints at the distance of the media's centre.
+pub const AUTO_BEAM_PIXELS: f32 = 2.0;
+/// Auto photon radius R1, in pixel footprints at the distance of the surfaces' centre.
+pub const AUTO_PHOTON_PIXELS: f32 = 3.0;

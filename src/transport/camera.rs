@@ -1,0 +1,224 @@
+//! Camera paths: one jittered ray per pixel per pass, followed through specular surfaces
+//! to the first diffuse hit. Every camera segment inside media gathers the beam estimate
+//! (with the camera transmittance up to each crossing); the diffuse hit gathers photons.
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::freepath::FreePath;
+use super::{Beam, Counters};
+use crate::bsdf;
+use crate::estimate::beams::BeamMap;
+use crate::estimate::photons::PhotonMap;
+use crate::estimate::splat::{splat, Primary};
+use crate::geometry::{Geometry, Ray, Surface, EPS};
+use crate::media::Media;
+use crate::sampling::{Rng, Stream};
+use crate::scene::{Camera, Material, Rgb};
+
+/// Longest chain of specular bounces a camera path follows.
+pub const MAX_SPECULAR: u32 = 64;
+
+/// Pinhole camera in the SPEC.md convention: pixel (0,0) top-left, vertical fov.
+#[derive(Clone, Copy, Debug)]
+pub struct Pinhole {
+    origin: Vec3,
+    right: Vec3,
+    up: Vec3,
+    forward: Vec3,
+    tan_half: f32,
+    width: u32,
+    height: u32,
+}
+
+impl Pinhole {
+    pub fn new(cam: &Camera, width: u32, height: u32) -> Self {
+        let forward = (cam.target - cam.origin).normalize();
+        let right = forward.cross(cam.up).normalize();
+        let up = right.cross(forward);
+        Pinhole {
+            origin: cam.origin,
+            right,
+            up,
+            forward,
+            tan_half: (cam.vfov_deg.to_radians() * 0.5).tan(),
+            width,
+            height,
+        }
+    }
+
+    /// Ray through continuous film position (px to the right, py downward).
+    pub fn ray(&self, px: f32, py: f32) -> Ray {
+        let aspect = self.width as f32 / self.height as f32;
+        let x = (2.0 * px / self.width as f32 - 1.0) * self.tan_half * aspect;
+        let y = (1.0 - 2.0 * py / self.height as f32) * self.tan_half;
+        Ray::new(
+            self.origin,
+            (self.right * x + self.up * y + self.forward).normalize(),
+        )
+    }
+
+    /// World-space width of one pixel at distance `dist` along the view axis.
+    pub fn pixel_footprint(&self, dist: f32) -> f32 {
+        2.0 * dist * self.tan_half / self.height as f32
+    }
+
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Distance of `p` in front of the camera along the view axis.
+    pub fn depth(&self, p: Vec3) -> f32 {
+        (p - self.origin).dot(self.forward)
+    }
+
+    /// Continuous film position of a point in front of the camera (inverse of [`Self::ray`]).
+    pub fn project(&self, p: Vec3) -> Vec2 {
+        let v = p - self.origin;
+        let z = v.dot(self.forward);
+        let aspect = self.width as f32 / self.height as f32;
+        let x = v.dot(self.right) / (z * self.tan_half * aspect);
+        let y = v.dot(self.up) / (z * self.tan_half);
+        Vec2::new(
+            (x + 1.0) * 0.5 * self.width as f32,
+            (1.0 - y) * 0.5 * self.height as f32,
+        )
+    }
+
+    /// Pixels per metre for something at view depth `z`.
+    pub fn pixels_per_unit_at(&self, z: f32) -> f32 {
+        self.height as f32 / (2.0 * z * self.tan_half)
+    }
+}
+
+/// Everything a camera pass reads.
+pub struct CameraTracer<'a> {
+    pub camera: &'a Pinhole,
+    pub geometry: &'a Geometry,
+    pub media: &'a Media,
+    pub free_path: &'a dyn FreePath,
+    pub beams: &'a [Beam],
+    /// BVH over the beams for camera segments after specular bounces; None when the camera
+    /// cannot reach a specular surface.
+    pub beam_map: Option<&'a BeamMap<'a>>,
+    pub beam_radius: f32,
+    pub photons: &'a PhotonMap,
+}
+
+impl CameraTracer<'_> {
+    /// Radiance of every pixel for one pass (row-major, top row first).
+    pub fn trace_pass(&self, seed: u64, pass: u32) -> (Vec<Rgb>, Counters) {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let rows: Vec<(Vec<(Rgb, Primary)>, Counters)> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let mut c = Counters::default();
+                let row = (0..w)
+                    .map(|x| {
+                        let idx = (y * w + x) as u64;
+                        let mut rng = Rng::for_path(seed, pass, Stream::Camera, idx);
+                        let j = rng.vec2();
+                        let ray = self.camera.ray(x as f32 + j.x, y as f32 + j.y);
+                        self.radiance(ray, &mut rng, &mut c)
+                    })
+                    .collect();
+                (row, c)
+            })
+            .collect();
+        let mut img = Vec::with_capacity(w * h);
+        let mut primaries = Vec::with_capacity(w * h);
+        let mut counters = Counters::default();
+        for (row, c) in rows {
+            for (l, p) in row {
+                img.push(l);
+                primaries.push(p);
+            }
+            counters.add(&c);
+        }
+        if !self.media.is_empty() && !self.beams.is_empty() {
+            let (beam_img, evals) = splat(
+                self.camera,
+                &primaries,
+                self.beams,
+                self.beam_radius,
+                self.media,
+            );
+            counters.beam_evaluations += evals;
+            for (a, b) in img.iter_mut().zip(beam_img) {
+                *a += b;
+            }
+        }
+        (img, counters)
+    }
+
+    /// Radiance along one camera path, except the beam estimate of its first segment,
+    /// which [`splat`] adds for all pixels at once; returns that segment too.
+    fn radiance(&self, mut ray: Ray, rng: &mut Rng, c: &mut Counters) -> (Rgb, Primary) {
+        c.camera_rays += 1;
+        let mut l = Rgb::ZERO;
+        let mut beta = Rgb::ONE;
+        let mut primary = Primary {
+            dir: ray.d,
+            t_surf: f32::INFINITY,
+        };
+        for depth in 0..MAX_SPECULAR {
+            let hit = self.geometry.intersect(&ray, f32::INFINITY);
+            let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
+            if depth == 0 {
+                primary.t_surf = t_surf;
+            } else {
+                l += beta * self.media_segment(&ray, t_surf, c);
+            }
+            if !self.media.is_empty() && t_surf.is_finite() {
+                let t0 = std::time::Instant::now();
+                beta *= self.free_path.transmittance(&ray, 0.0, t_surf);
+                c.transmittance_seconds += t0.elapsed().as_secs_f64();
+            }
+            let Some(h) = hit else { break };
+            let material = match h.surface {
+                Surface::Emitter(le) => {
+                    l += beta * le;
+                    break;
+                }
+                Surface::Material(m) => m,
+            };
+            if let Material::Lambert { reflectance } = material {
+                let n = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
+                l += beta
+                    * self
+                        .photons
+                        .radiance(h.p, n, reflectance, &mut c.photon_lookups);
+                break;
+            }
+            let Some(b) = bsdf::sample(&material, ray.d, h.ng, h.ns, rng.f32(), Vec2::ZERO) else {
+                break;
+            };
+            beta *= b.weight;
+            let off = if b.dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
+            ray = Ray::new(h.p + off * EPS, b.dir);
+        }
+        (l, primary)
+    }
+
+    /// In-scattered radiance from the beams along [0, t_surf], attenuated to the ray origin.
+    fn media_segment(&self, ray: &Ray, t_surf: f32, c: &mut Counters) -> Rgb {
+        let Some(beams) = self.beam_map.filter(|_| !self.media.is_empty()) else {
+            return Rgb::ZERO;
+        };
+        let mut l = Rgb::ZERO;
+        for s in self.media.segments(ray, t_surf).iter() {
+            let tau0 = self.media.optical_depth(ray, 0.0, s.t0);
+            let tr = |t: f32| (-(tau0 + s.sigma_t * (t - s.t0))).exp();
+            let scatter = |x: Vec3, cos: f32| self.media.in_scatter(x, cos);
+            l += beams.radiance(ray, s.t0, s.t1, scatter, tr, &mut c.beam_evaluations);
+        }
+        l
+    }
+}

@@ -1,0 +1,255 @@
+//! Light tracing: paths from the lights, chosen by power, stored as beams in media and as
+//! photons on Lambert surfaces.
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::freepath::FreePath;
+use super::{Beam, Counters, Photon, MAX_DEPTH};
+use crate::bsdf;
+use crate::geometry::{Geometry, Ray, Surface, EPS};
+use crate::media::Media;
+use crate::sampling::{
+    cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_disk, uniform_sphere, Rng, Stream,
+};
+use crate::scene::{Light, Material, Rgb};
+
+/// Lights with a discrete distribution proportional to their power.
+pub struct LightSampler {
+    lights: Vec<Light>,
+    cdf: Vec<f32>,
+    /// Sphere bounding everything a directional light must cover.
+    scene_center: Vec3,
+    scene_radius: f32,
+}
+
+/// One emitted photon: where it starts, where it goes and its power (W).
+pub struct Emission {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub power: Rgb,
+}
+
+impl LightSampler {
+    pub fn new(lights: &[Light], scene_bounds: [Vec3; 2]) -> Self {
+        let scene_center = 0.5 * (scene_bounds[0] + scene_bounds[1]);
+        let scene_radius = 0.5 * (scene_bounds[1] - scene_bounds[0]).length() * 1.01 + 1e-3;
+        let weights: Vec<f32> = lights
+            .iter()
+            .map(|l| l.power(scene_radius).element_sum().max(0.0))
+            .collect();
+        let total: f32 = weights.iter().sum();
+        let mut acc = 0.0;
+        let cdf = weights
+            .iter()
+            .map(|w| {
+                acc += w / total.max(f32::MIN_POSITIVE);
+                acc
+            })
+            .collect();
+        LightSampler {
+            lights: lights.to_vec(),
+            cdf,
+            scene_center,
+            scene_radius,
+        }
+    }
+
+    pub fn total_power(&self) -> Rgb {
+        self.lights
+            .iter()
+            .map(|l| l.power(self.scene_radius))
+            .fold(Vec3::ZERO, |a, b| a + b)
+    }
+
+    /// Picks a light by power and samples a photon from it, carrying power / pdf.
+    pub fn emit(&self, rng: &mut Rng) -> Option<Emission> {
+        let u = rng.f32();
+        let idx = self.cdf.iter().position(|&c| u < c)?;
+        let pick = self.cdf[idx] - if idx > 0 { self.cdf[idx - 1] } else { 0.0 };
+        let u1 = rng.vec2();
+        let u2 = rng.vec2();
+        let e = self.emit_from(&self.lights[idx], u1, u2);
+        Some(Emission {
+            power: e.power / pick,
+            ..e
+        })
+    }
+
+    fn emit_from(&self, light: &Light, u1: Vec2, u2: Vec2) -> Emission {
+        let power = light.power(self.scene_radius);
+        match *light {
+            Light::Point { position, .. } => Emission {
+                origin: position,
+                dir: uniform_sphere(u1),
+                power,
+            },
+            Light::Spot {
+                position,
+                direction,
+                intensity,
+                inner_deg,
+                outer_deg,
+            } => {
+                let cos_outer = outer_deg.to_radians().cos();
+                let cos_inner = inner_deg.to_radians().cos();
+                let dir = uniform_cone(direction, cos_outer, u1);
+                let c = dir.dot(direction);
+                let falloff = ((c - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0);
+                let solid_angle = 2.0 * std::f32::consts::PI * (1.0 - cos_outer);
+                Emission {
+                    origin: position,
+                    dir,
+                    power: intensity * falloff * solid_angle,
+                }
+            }
+            Light::Directional { direction, .. } => {
+                let (t, b) = orthonormal_basis(direction);
+                let d = uniform_disk(u1) * self.scene_radius;
+                Emission {
+                    origin: self.scene_center - direction * self.scene_radius * 1.01
+                        + t * d.x
+                        + b * d.y,
+                    dir: direction,
+                    power,
+                }
+            }
+            Light::Sphere { center, radius, .. } => {
+                let n = uniform_sphere(u1);
+                Emission {
+                    origin: center + n * (radius + EPS),
+                    dir: cosine_hemisphere(n, u2),
+                    power,
+                }
+            }
+        }
+    }
+}
+
+/// What light tracing needs to know about the scene.
+pub struct LightTracer<'a> {
+    pub lights: &'a LightSampler,
+    pub geometry: &'a Geometry,
+    pub media: &'a Media,
+    pub free_path: &'a dyn FreePath,
+}
+
+/// One pass worth of light-path records.
+#[derive(Default)]
+pub struct LightPass {
+    pub beams: Vec<Beam>,
+    pub photons: Vec<Photon>,
+    pub counters: Counters,
+}
+
+/// Paths per rayon task: small tasks balance well, and each keeps its own output.
+const CHUNK: usize = 512;
+
+impl LightTracer<'_> {
+    /// Traces `n` light paths for `pass`; the output order and values depend only on
+    /// (seed, pass), never on the thread count.
+    pub fn trace_pass(&self, seed: u64, pass: u32, n: usize) -> LightPass {
+        let chunks: Vec<LightPass> = (0..n.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut out = LightPass::default();
+                for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                    let mut rng = Rng::for_path(seed, pass, Stream::Light, i as u64);
+                    self.trace_path(&mut rng, 1.0 / n as f32, &mut out);
+                }
+                out
+            })
+            .collect();
+        let mut all = LightPass::default();
+        all.beams
+            .reserve(chunks.iter().map(|c| c.beams.len()).sum());
+        all.photons
+            .reserve(chunks.iter().map(|c| c.photons.len()).sum());
+        for c in chunks {
+            all.beams.extend_from_slice(&c.beams);
+            all.photons.extend_from_slice(&c.photons);
+            all.counters.add(&c.counters);
+        }
+        all
+    }
+
+    fn trace_path(&self, rng: &mut Rng, scale: f32, out: &mut LightPass) {
+        out.counters.light_paths += 1;
+        let Some(e) = self.lights.emit(rng) else {
+            return;
+        };
+        let mut ray = Ray::new(e.origin, e.dir);
+        let mut power = e.power * scale;
+        for _ in 0..MAX_DEPTH {
+            let hit = self.geometry.intersect(&ray, f32::INFINITY);
+            let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
+            let collision = if self.media.is_empty() {
+                None
+            } else {
+                let t0 = std::time::Instant::now();
+                let c = self.free_path.sample(&ray, t_surf, rng, &mut out.counters);
+                out.counters.free_path_seconds += t0.elapsed().as_secs_f64();
+                c
+            };
+            let t_end = collision.unwrap_or(t_surf);
+            self.store_beams(&ray, t_end, power, out);
+            if let Some(t) = collision {
+                let p = ray.at(t);
+                let Some(m) = self.media.pick_collider(p, rng.f32()) else {
+                    return;
+                };
+                let q = m.albedo.max_element().min(1.0);
+                if q <= 0.0 || rng.f32() >= q {
+                    return;
+                }
+                power *= m.albedo / q;
+                let (u1, u2) = (rng.f32(), rng.f32());
+                ray = Ray::new(p, m.phase.sample(ray.d, u1, u2));
+                continue;
+            }
+            let Some(h) = hit else { return };
+            let Surface::Material(material) = h.surface else {
+                return;
+            };
+            let side = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
+            if let Material::Lambert { .. } = material {
+                out.photons.push(Photon::new(h.p, side, power));
+                out.counters.photons += 1;
+            }
+            let (u, u2) = (rng.f32(), rng.vec2());
+            let Some(b) = bsdf::sample(&material, ray.d, h.ng, h.ns, u, u2) else {
+                return;
+            };
+            let q = b.weight.max_element().min(1.0);
+            if q <= 0.0 || rng.f32() >= q {
+                return;
+            }
+            power *= b.weight / q;
+            let off = if b.dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
+            ray = Ray::new(h.p + off * EPS, b.dir);
+        }
+    }
+
+    fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
+        if self.media.is_empty() || !t_end.is_finite() && self.media.bounds().is_none() {
+            return;
+        }
+        let segs = self.media.segments(ray, t_end);
+        // Adjacent pieces of different extinction still form one continuous beam.
+        let mut start: Option<(f32, f32)> = None;
+        for s in segs.iter() {
+            start = match start {
+                Some((a, b)) if (s.t0 - b).abs() <= 1e-6 => Some((a, s.t1)),
+                Some((a, b)) => {
+                    out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
+                    out.counters.beams += 1;
+                    Some((s.t0, s.t1))
+                }
+                None => Some((s.t0, s.t1)),
+            };
+        }
+        if let Some((a, b)) = start {
+            out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
+            out.counters.beams += 1;
+        }
+    }
+}

@@ -1,0 +1,101 @@
+//! Path tracing from the lights (beams and surface photons) and from the camera.
+//!
+//! [`Beam`] and [`Photon`] are `#[repr(C)]` + `Pod`: the one definition that CPU code and
+//! GPU buffers share.
+pub mod camera;
+pub mod freepath;
+pub mod light;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+/// A photon beam (Jarosz et al. 2011, "short beam"): the stretch of a light path inside
+/// media, from `origin` along unit `dir` for `length` m, ending where the path collided or
+/// left the media. Its power is the path's power at `origin`, not attenuated along it: the
+/// free-path sampling that ended it already accounts for the transmittance.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Beam {
+    pub origin: [f32; 3],
+    pub length: f32,
+    pub dir: [f32; 3],
+    pub _pad: f32,
+    /// W per channel.
+    pub power: [f32; 3],
+    pub _pad2: f32,
+}
+
+/// A photon on a Lambert surface.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Photon {
+    pub position: [f32; 3],
+    pub _pad: f32,
+    /// Surface normal on the side the photon arrived from.
+    pub normal: [f32; 3],
+    pub _pad2: f32,
+    /// W per channel.
+    pub power: [f32; 3],
+    pub _pad3: f32,
+}
+
+impl Beam {
+    pub fn new(origin: Vec3, dir: Vec3, length: f32, power: Vec3) -> Self {
+        Beam {
+            origin: origin.into(),
+            length,
+            dir: dir.into(),
+            _pad: 0.0,
+            power: power.into(),
+            _pad2: 0.0,
+        }
+    }
+}
+
+impl Photon {
+    pub fn new(position: Vec3, normal: Vec3, power: Vec3) -> Self {
+        Photon {
+            position: position.into(),
+            _pad: 0.0,
+            normal: normal.into(),
+            _pad2: 0.0,
+            power: power.into(),
+            _pad3: 0.0,
+        }
+    }
+}
+
+/// Machine-independent work counters, summed over threads.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Counters {
+    pub light_paths: u64,
+    pub beams: u64,
+    pub photons: u64,
+    pub free_paths: u64,
+    pub density_lookups: u64,
+    pub camera_rays: u64,
+    pub beam_evaluations: u64,
+    pub photon_lookups: u64,
+    /// Thread-seconds spent sampling free paths (light and camera paths).
+    pub free_path_seconds: f64,
+    /// Thread-seconds spent on camera-segment transmittance.
+    pub transmittance_seconds: f64,
+}
+
+impl Counters {
+    pub fn add(&mut self, o: &Counters) {
+        self.light_paths += o.light_paths;
+        self.beams += o.beams;
+        self.photons += o.photons;
+        self.free_paths += o.free_paths;
+        self.density_lookups += o.density_lookups;
+        self.camera_rays += o.camera_rays;
+        self.beam_evaluations += o.beam_evaluations;
+        self.photon_lookups += o.photon_lookups;
+        self.free_path_seconds += o.free_path_seconds;
+        self.transmittance_seconds += o.transmittance_seconds;
+    }
+}
+
+/// Upper bound on scattering events per path, as the references (Mitsuba max_depth 1024).
+pub const MAX_DEPTH: u32 = 1024;
