@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use ppb::compare::{compare as metrics, read_mask};
+use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::film::Film;
 use ppb::output::{self, Image};
 use ppb::render::{Renderer, Timings};
@@ -65,6 +65,9 @@ pub struct CompareArgs {
     /// PNG mask: white pixels are left out of the metrics.
     #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// Also compare means over K x K pixel blocks (regional error, less sensitive to noise).
+    #[arg(long, value_name = "K")]
+    pub block: Option<usize>,
 }
 
 fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
@@ -295,6 +298,15 @@ pub fn compare(args: CompareArgs) -> Result<ExitCode> {
         None => None,
     };
     let m = metrics(&a, &b, mask.as_deref())?;
+    if let Some(k) = args.block.filter(|&k| k > 1) {
+        let block_skip = mask.as_ref().map(|m| block_mask(m, b.width, k));
+        let bm = metrics(
+            &block_mean(&a, k),
+            &block_mean(&b, k),
+            block_skip.as_deref(),
+        )?;
+        println!("rel_l1 of {k}x{k} block means {:.6}", bm.rel_l1);
+    }
     println!("rel_l1     {:.6}", m.rel_l1);
     println!("rel_rmse   {:.6}", m.rel_rmse);
     println!(
@@ -314,6 +326,20 @@ pub fn compare(args: CompareArgs) -> Result<ExitCode> {
         println!("ok: rel_l1 {:.6} <= {max}", m.rel_l1);
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// A block is left out when any of its pixels is.
+fn block_mask(mask: &[bool], width: usize, k: usize) -> Vec<bool> {
+    let bw = width / k;
+    let bh = mask.len() / width / k;
+    let mut out = vec![false; bw * bh];
+    for (i, &m) in mask.iter().enumerate() {
+        let (x, y) = (i % width / k, i / width / k);
+        if m && x < bw && y < bh {
+            out[y * bw + x] = true;
+        }
+    }
+    out
 }
 
 pub fn info(scene: &Path) -> Result<ExitCode> {

@@ -90,6 +90,29 @@ pub fn sample(
     }
 }
 
+/// Both branches of a smooth dielectric with their Fresnel weights (reflection F,
+/// refraction 1 - F; refraction absent under total internal reflection); None for other
+/// materials. Branches leaving on the wrong side of the geometric surface are dropped.
+pub fn split(material: &Material, d: Vec3, ng: Vec3, ns: Vec3) -> Option<[Option<(Vec3, f32)>; 2]> {
+    let Material::Dielectric { ior } = *material else {
+        return None;
+    };
+    let front = d.dot(ng) < 0.0;
+    let n_geo = if front { ng } else { -ng };
+    let mut n = if ns.dot(n_geo) < 0.0 { -ns } else { ns };
+    if -d.dot(n) <= 0.0 {
+        n = n_geo;
+    }
+    let eta = if front { ior } else { 1.0 / ior };
+    let f = fresnel_dielectric(-d.dot(n), eta);
+    let r = reflect(d, n);
+    let reflected = (r.dot(n_geo) > 0.0).then_some((r, f));
+    let refracted = refract(d, n, eta)
+        .filter(|t| t.dot(n_geo) < 0.0 && f < 1.0)
+        .map(|t| (t, 1.0 - f));
+    Some([reflected, refracted])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

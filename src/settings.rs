@@ -41,6 +41,6 @@ impl Default for RenderSettings {
 }
 
 /// Auto beam radius R1, in pixel footprints at the distance of the media's centre.
-pub const AUTO_BEAM_PIXELS: f32 = 2.0;
+pub const AUTO_BEAM_PIXELS: f32 = 1.0;
 /// Auto photon radius R1, in pixel footprints at the distance of the surfaces' centre.
 pub const AUTO_PHOTON_PIXELS: f32 = 3.0;

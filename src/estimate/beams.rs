@@ -175,41 +175,77 @@ mod tests {
 
     /// With sigma_s f = 1 the estimate integrates the fluence along the camera segment;
     /// isotropic beams of unit power and line-length density lambda (m/m^3) have fluence
-    /// lambda, so the mean per unit length must be lambda. Bound: 5 standard errors.
+    /// lambda, so the mean per unit length must be lambda. Each trial draws a fresh beam
+    /// set (the beams' own Poisson fluctuation is part of the error); bound: 5 standard
+    /// errors of the trial means.
     #[test]
     fn estimate_recovers_beam_length_density() {
         let mut rng = Rng::new(11, 2);
-        let half = 1.0f32;
-        let n = 60_000;
-        let len = 0.5f32;
-        let beams: Vec<Beam> = (0..n)
-            .map(|_| {
-                let c = (Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0) * half;
+        let (n, len, trials, probes, seg) = (30_000, 0.5f32, 40, 20, 0.6f32);
+        let mut means = Vec::with_capacity(trials);
+        for _ in 0..trials {
+            let beams: Vec<Beam> = (0..n)
+                .map(|_| {
+                    let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
+                    let d = uniform_sphere(rng.vec2());
+                    Beam::new(c - d * (len * 0.5), d, len, Vec3::ONE)
+                })
+                .collect();
+            let map = BeamMap::build(&beams, 0.05);
+            let mut evals = 0;
+            let mut sum = 0.0f64;
+            // Probes stay within 0.5 of the centre, where every beam covering a point is
+            // inside the [-1, 1]^3 box of beam centres.
+            for _ in 0..probes {
+                let o = (Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0) * 0.2;
                 let d = uniform_sphere(rng.vec2());
-                Beam::new(c - d * (len * 0.5), d, len, Vec3::ONE)
-            })
-            .collect();
-        let map = BeamMap::build(&beams, 0.05);
-        // Probe the inner region, well away from the box faces where the density drops.
-        let mut evals = 0;
-        let m = 400;
-        let mut vals = Vec::with_capacity(m);
-        let seg = 0.6f32;
-        for _ in 0..m {
-            let o = (Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0) * 0.2;
-            let d = uniform_sphere(rng.vec2());
-            let ray = Ray::new(o - d * (seg * 0.5), d);
-            let l = map.radiance(&ray, 0.0, seg, |_, _| Vec3::ONE, |_| 1.0, &mut evals);
-            vals.push(l.x as f64 / seg as f64);
+                let ray = Ray::new(o - d * (seg * 0.5), d);
+                let l = map.radiance(&ray, 0.0, seg, |_, _| Vec3::ONE, |_| 1.0, &mut evals);
+                sum += l.x as f64 / seg as f64;
+            }
+            means.push(sum / probes as f64);
         }
-        let mean = vals.iter().sum::<f64>() / m as f64;
-        let var = vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
-        let expect = n as f64 * len as f64 / (2.0 * half as f64).powi(3);
-        let bound = 5.0 * (var / m as f64).sqrt();
+        let mean = means.iter().sum::<f64>() / trials as f64;
+        let var = means.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (trials - 1) as f64;
+        let expect = n as f64 * len as f64 / 8.0;
+        let bound = 5.0 * (var / trials as f64).sqrt();
         assert!(
             (mean - expect).abs() < bound,
             "{mean} vs {expect} +- {bound}"
         );
         assert!(bound < 0.05 * expect, "test too weak: {bound}");
+    }
+
+    /// The BVH query finds exactly the crossings a brute-force loop over all beams finds.
+    #[test]
+    fn bvh_matches_brute_force() {
+        let mut rng = Rng::new(11, 2);
+        let beams: Vec<Beam> = (0..20000)
+            .map(|_| {
+                let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
+                let d = uniform_sphere(rng.vec2());
+                Beam::new(c - d * 0.25, d, 0.5, Vec3::ONE)
+            })
+            .collect();
+        let r = 0.05;
+        let map = BeamMap::build(&beams, r);
+        let mut e = 0;
+        for _ in 0..50 {
+            let o = (Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0) * 0.2;
+            let d = uniform_sphere(rng.vec2());
+            let ray = Ray::new(o, d);
+            let a = map
+                .radiance(&ray, 0.0, 0.6, |_, _| Vec3::ONE, |_| 1.0, &mut e)
+                .x;
+            let mut b = 0.0;
+            for bm in &beams {
+                if let Some(c) = crossing(o, d, Vec3::from(bm.origin), Vec3::from(bm.dir)) {
+                    if c.dist < r && c.t >= 0.0 && c.t < 0.6 && c.s >= 0.0 && c.s < bm.length {
+                        b += kernel(c.dist, r) / c.sin_theta;
+                    }
+                }
+            }
+            assert!((a - b).abs() < 1e-3 * b.max(1.0), "{a} vs {b}");
+        }
     }
 }

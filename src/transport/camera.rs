@@ -5,6 +5,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::freepath::FreePath;
+use super::light::enters_glass;
 use super::{Beam, Counters};
 use crate::bsdf;
 use crate::estimate::beams::BeamMap;
@@ -17,6 +18,23 @@ use crate::scene::{Camera, Material, Rgb};
 
 /// Longest chain of specular bounces a camera path follows.
 pub const MAX_SPECULAR: u32 = 64;
+
+/// Dielectric hits (per path) at which both Fresnel branches are followed.
+pub const SPLIT_DEPTH: u32 = 2;
+
+#[derive(Clone, Copy)]
+struct PathState {
+    beta: Rgb,
+    /// Specular bounces so far.
+    depth: u32,
+    in_glass: bool,
+}
+
+/// A ray leaving hit `h` along `dir`, offset to the side it leaves on.
+fn leave(h: &crate::geometry::Hit, dir: Vec3) -> Ray {
+    let off = if dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
+    Ray::new(h.p + off * EPS, dir)
+}
 
 /// Pinhole camera in the SPEC.md convention: pixel (0,0) top-left, vertical fov.
 #[derive(Clone, Copy, Debug)]
@@ -160,51 +178,84 @@ impl CameraTracer<'_> {
 
     /// Radiance along one camera path, except the beam estimate of its first segment,
     /// which [`splat`] adds for all pixels at once; returns that segment too.
-    fn radiance(&self, mut ray: Ray, rng: &mut Rng, c: &mut Counters) -> (Rgb, Primary) {
+    fn radiance(&self, ray: Ray, rng: &mut Rng, c: &mut Counters) -> (Rgb, Primary) {
         c.camera_rays += 1;
-        let mut l = Rgb::ZERO;
-        let mut beta = Rgb::ONE;
         let mut primary = Primary {
             dir: ray.d,
             t_surf: f32::INFINITY,
         };
-        for depth in 0..MAX_SPECULAR {
+        let state = PathState {
+            beta: Rgb::ONE,
+            depth: 0,
+            in_glass: false,
+        };
+        let l = self.follow(ray, state, rng, c, Some(&mut primary));
+        (l, primary)
+    }
+
+    /// Follows a camera path from `ray`. At the first [`SPLIT_DEPTH`] dielectric hits both
+    /// the reflected and the refracted branch are followed, weighted by F and 1 - F, which
+    /// removes the noise of picking one (highlights of the light seen in glass).
+    fn follow(
+        &self,
+        mut ray: Ray,
+        mut st: PathState,
+        rng: &mut Rng,
+        c: &mut Counters,
+        mut primary: Option<&mut Primary>,
+    ) -> Rgb {
+        let mut l = Rgb::ZERO;
+        while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
-            if depth == 0 {
-                primary.t_surf = t_surf;
-            } else {
-                l += beta * self.media_segment(&ray, t_surf, c);
+            if let Some(p) = primary.take() {
+                p.t_surf = t_surf;
+            } else if !st.in_glass {
+                l += st.beta * self.media_segment(&ray, t_surf, c);
             }
-            if !self.media.is_empty() && t_surf.is_finite() {
+            if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
                 let t0 = std::time::Instant::now();
-                beta *= self.free_path.transmittance(&ray, 0.0, t_surf);
+                st.beta *= self.free_path.transmittance(&ray, 0.0, t_surf);
                 c.transmittance_seconds += t0.elapsed().as_secs_f64();
             }
             let Some(h) = hit else { break };
             let material = match h.surface {
                 Surface::Emitter(le) => {
-                    l += beta * le;
+                    l += st.beta * le;
                     break;
                 }
                 Surface::Material(m) => m,
             };
             if let Material::Lambert { reflectance } = material {
                 let n = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
-                l += beta
+                l += st.beta
                     * self
                         .photons
                         .radiance(h.p, n, reflectance, &mut c.photon_lookups);
                 break;
             }
+            st.depth += 1;
+            if st.depth <= SPLIT_DEPTH {
+                if let Some(branches) = bsdf::split(&material, ray.d, h.ng, h.ns) {
+                    for (dir, w) in branches.into_iter().flatten() {
+                        let next = PathState {
+                            beta: st.beta * w,
+                            in_glass: enters_glass(&material, dir, h.ng),
+                            ..st
+                        };
+                        l += self.follow(leave(&h, dir), next, rng, c, None);
+                    }
+                    break;
+                }
+            }
             let Some(b) = bsdf::sample(&material, ray.d, h.ng, h.ns, rng.f32(), Vec2::ZERO) else {
                 break;
             };
-            beta *= b.weight;
-            let off = if b.dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
-            ray = Ray::new(h.p + off * EPS, b.dir);
+            st.beta *= b.weight;
+            st.in_glass = enters_glass(&material, b.dir, h.ng);
+            ray = leave(&h, b.dir);
         }
-        (l, primary)
+        l
     }
 
     /// In-scattered radiance from the beams along [0, t_surf], attenuated to the ray origin.
@@ -220,5 +271,30 @@ impl CameraTracer<'_> {
             l += beams.radiance(ray, s.t0, s.t1, scatter, tr, &mut c.beam_evaluations);
         }
         l
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// SPEC.md: looking down -Z from +Z with up +Y, world +X is on the right of the image,
+    /// +Y in the upper half (row 0 at the top), and the field of view is vertical.
+    #[test]
+    fn camera_convention() {
+        let cam = Camera {
+            origin: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 40.0,
+        };
+        let p = Pinhole::new(&cam, 200, 100);
+        let right = p.project(Vec3::new(1.0, 0.0, 0.0));
+        assert!(right.x > 100.0 && (right.y - 50.0).abs() < 1e-3);
+        let up = p.project(Vec3::new(0.0, 0.5 * 20f32.to_radians().tan() * 5.0, 0.0));
+        assert!((up.y - 25.0).abs() < 1e-3, "{up}");
+        let r = p.ray(37.25, 81.5);
+        let back = p.project(r.at(3.0));
+        assert!((back - Vec2::new(37.25, 81.5)).length() < 1e-3);
     }
 }

@@ -179,10 +179,12 @@ impl LightTracer<'_> {
         };
         let mut ray = Ray::new(e.origin, e.dir);
         let mut power = e.power * scale;
+        // Inside a dielectric the path sees no medium (glass interiors are clear).
+        let mut in_glass = false;
         for _ in 0..MAX_DEPTH {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
-            let collision = if self.media.is_empty() {
+            let collision = if self.media.is_empty() || in_glass {
                 None
             } else {
                 let t0 = std::time::Instant::now();
@@ -191,7 +193,9 @@ impl LightTracer<'_> {
                 c
             };
             let t_end = collision.unwrap_or(t_surf);
-            self.store_beams(&ray, t_end, power, out);
+            if !in_glass {
+                self.store_beams(&ray, t_end, power, out);
+            }
             if let Some(t) = collision {
                 let p = ray.at(t);
                 let Some(m) = self.media.pick_collider(p, rng.f32()) else {
@@ -224,6 +228,7 @@ impl LightTracer<'_> {
                 return;
             }
             power *= b.weight / q;
+            in_glass = enters_glass(&material, b.dir, h.ng);
             let off = if b.dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
             ray = Ray::new(h.p + off * EPS, b.dir);
         }
@@ -252,4 +257,11 @@ impl LightTracer<'_> {
             out.counters.beams += 1;
         }
     }
+}
+
+/// Whether a path leaving a surface along `dir` travels inside a dielectric: meshes are
+/// closed with outward normals (CCW from outside), so that is a dielectric left on the
+/// side opposite its normal. Opaque surfaces always send the path back outside.
+pub fn enters_glass(material: &Material, dir: Vec3, ng: Vec3) -> bool {
+    matches!(material, Material::Dielectric { .. }) && dir.dot(ng) < 0.0
 }

@@ -1,0 +1,230 @@
+//! The `ppb` binary end to end: a tiny render with its outputs and stats, `compare`'s exit
+//! codes, and bad input, which must give one line naming the file and field, exit code 2
+//! and no panic.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ppb() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ppb"))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ppb-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const FLOOR: &str =
+    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
+
+/// A small valid scene; `extra` is appended to it.
+fn scene(dir: &Path, extra: &str) -> PathBuf {
+    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    let text = format!(
+        r#"[render]
+width = 24
+height = 16
+passes = 2
+beams_per_pass = 2000
+
+[camera]
+origin = [0, 1.5, 5]
+target = [0, 0.8, 0]
+vfov = 40
+
+[[material]]
+name = "floor"
+type = "lambert"
+reflectance = [0.5, 0.5, 0.5]
+
+[[mesh]]
+path = "floor.obj"
+material = "floor"
+
+[[light]]
+type = "point"
+position = [0, 2.6, 0]
+intensity = [20, 20, 20]
+
+[[medium]]
+type = "homogeneous"
+bounds = [[-1, 0.25, -1], [1, 1.75, 1]]
+sigma_t = 1.0
+albedo = [0.8, 0.8, 0.8]
+{extra}"#
+    );
+    let p = dir.join("scene.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Runs `ppb render` on `scene` and returns (exit code, stderr).
+fn render(scene: &Path, out: &Path) -> (i32, String) {
+    let o = ppb()
+        .args(["render", "-q", "-o"])
+        .arg(out)
+        .arg(scene)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+fn assert_bad(name: &str, edit: impl Fn(&Path, &Path) -> PathBuf, expect: &[&str]) {
+    let dir = temp_dir(name);
+    let good = scene(&dir, "");
+    let bad = edit(&dir, &good);
+    let (code, err) = render(&bad, &dir.join("out.exr"));
+    assert_eq!(code, 2, "{name}: exit code {code}, stderr: {err}");
+    assert!(!err.contains("panicked"), "{name}: panic: {err}");
+    assert_eq!(err.trim().lines().count(), 1, "{name}: not one line: {err}");
+    for e in expect {
+        assert!(err.contains(e), "{name}: '{e}' missing from: {err}");
+    }
+    assert!(!dir.join("out.exr").exists(), "{name}: wrote an output");
+}
+
+fn rewrite(path: &Path, from: &str, to: &str) -> PathBuf {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{from}");
+    std::fs::write(path, text.replace(from, to)).unwrap();
+    path.to_path_buf()
+}
+
+#[test]
+fn renders_with_outputs_and_stats() {
+    let dir = temp_dir("ok");
+    let s = scene(&dir, "");
+    let out = dir.join("img.exr");
+    let stats = dir.join("stats.json");
+    let o = ppb()
+        .args(["render", "-q", "--stats"])
+        .arg(&stats)
+        .arg("-o")
+        .arg(&out)
+        .arg(&s)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = ppb::output::read_exr(&out).unwrap();
+    assert_eq!((img.width, img.height), (24, 16));
+    assert!(img.pixels.iter().any(|p| p[0] > 0.0));
+    assert!(dir.join("img.png").exists());
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    assert_eq!(json["passes"], 2);
+    assert_eq!(json["counters"]["light_paths"], 4000);
+    for k in [
+        "light_tracing",
+        "free_path_sampling",
+        "camera_transmittance",
+        "estimate",
+        "other",
+    ] {
+        assert!(json["seconds"][k].is_number(), "{k}");
+    }
+    // compare: identical images pass any threshold; a scaled image fails a tight one.
+    let same = ppb()
+        .args(["compare", "--max-rel-l1", "0"])
+        .arg(&out)
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(same.status.code(), Some(0));
+    let mut brighter = img.clone();
+    for p in &mut brighter.pixels {
+        p[0] *= 1.5;
+    }
+    let b = dir.join("brighter.exr");
+    ppb::output::write_exr(&b, &brighter, &[]).unwrap();
+    let diff = ppb()
+        .args(["compare", "--max-rel-l1", "0.01"])
+        .arg(&b)
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(diff.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&diff.stdout).contains("rel_l1"));
+}
+
+#[test]
+fn bad_input_is_one_clear_line() {
+    assert_bad("missing", |d, _| d.join("nope.toml"), &["nope.toml"]);
+    assert_bad(
+        "syntax",
+        |_, s| rewrite(s, "sigma_t = 1.0", "sigma_t = = 1.0"),
+        &["scene.toml", "line 29"],
+    );
+    assert_bad(
+        "unknown-key",
+        |_, s| rewrite(s, "sigma_t = 1.0", "sigma_t = 1.0\ndensity = 3"),
+        &["scene.toml", "unknown field `density`"],
+    );
+    assert_bad(
+        "unknown-material",
+        |_, s| rewrite(s, "material = \"floor\"", "material = \"marble\""),
+        &["scene.toml", "mesh[0].material", "marble"],
+    );
+    assert_bad(
+        "nan",
+        |_, s| rewrite(s, "sigma_t = 1.0", "sigma_t = nan"),
+        &["scene.toml", "medium[0].sigma_t"],
+    );
+    assert_bad(
+        "negative",
+        |_, s| rewrite(s, "sigma_t = 1.0", "sigma_t = -1.0"),
+        &["medium[0].sigma_t"],
+    );
+    assert_bad(
+        "albedo",
+        |_, s| rewrite(s, "albedo = [0.8, 0.8, 0.8]", "albedo = [0.8, 1.8, 0.8]"),
+        &["medium[0].albedo"],
+    );
+    assert_bad(
+        "missing-mesh",
+        |_, s| rewrite(s, "path = \"floor.obj\"", "path = \"gone.obj\""),
+        &["gone.obj"],
+    );
+    assert_bad(
+        "empty-mesh",
+        |d, s| {
+            std::fs::write(d.join("empty.obj"), "v 0 0 0\nv 1 0 0\n").unwrap();
+            rewrite(s, "path = \"floor.obj\"", "path = \"empty.obj\"")
+        },
+        &["empty.obj", "no triangles"],
+    );
+    assert_bad(
+        "gltf-extension",
+        |d, s| {
+            let gltf = r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_draco_mesh_compression"],
+                "extensionsRequired":["KHR_draco_mesh_compression"],"scenes":[{"nodes":[]}],"scene":0}"#;
+            std::fs::write(d.join("draco.gltf"), gltf).unwrap();
+            rewrite(s, "path = \"floor.obj\"", "path = \"draco.gltf\"")
+        },
+        &[
+            "draco.gltf",
+            "extensionsRequired",
+            "KHR_draco_mesh_compression",
+        ],
+    );
+    assert_bad(
+        "bad-light-type",
+        |_, s| rewrite(s, "type = \"point\"", "type = \"laser\""),
+        &["scene.toml", "laser"],
+    );
+}
+
+#[test]
+fn failed_render_keeps_earlier_output() {
+    let dir = temp_dir("keep");
+    let s = scene(&dir, "");
+    let out = dir.join("img.exr");
+    assert_eq!(render(&s, &out).0, 0);
+    let before = std::fs::read(&out).unwrap();
+    rewrite(&s, "sigma_t = 1.0", "sigma_t = -2.0");
+    assert_eq!(render(&s, &out).0, 2);
+    assert_eq!(std::fs::read(&out).unwrap(), before);
+}
