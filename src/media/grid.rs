@@ -1,0 +1,283 @@
+//! The density grid every source (OpenVDB, NanoVDB, procedural) produces.
+//!
+//! Sparse: values live in 8^3 leaves, found through a table of leaf slots over the bounding
+//! box of the leaves (one u32 per 512 voxels), so empty space costs 4 bytes per leaf slot
+//! and a lookup is two array reads. Constant regions (VDB tiles) are stored as boxes.
+//! Values sit at voxel centres: voxel (i,j,k) is at `index_to_world * (i,j,k)` (the VDB
+//! convention); between voxels the field is trilinear; outside leaves and tiles it is
+//! `background`.
+use glam::{DAffine3, DVec3, IVec3, Vec3};
+use std::collections::HashMap;
+
+/// Leaf edge length in voxels.
+pub const LEAF: i32 = 8;
+const LEAF_VOXELS: usize = 512;
+const EMPTY: u32 = u32::MAX;
+
+#[derive(Clone, Debug)]
+pub struct Leaf {
+    /// Values in x-major order: index = (x * 8 + y) * 8 + z, as in OpenVDB and NanoVDB.
+    pub values: [f32; LEAF_VOXELS],
+    /// Active flags, bit n of word n / 64 for voxel n in the same order.
+    pub active: [u64; 8],
+}
+
+/// A constant box of voxels [min, max] (inclusive), e.g. an OpenVDB tile.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tile {
+    pub min: IVec3,
+    pub max: IVec3,
+    pub value: f32,
+    pub active: bool,
+}
+
+/// Accumulates leaves and tiles; [`GridBuilder::finish`] makes the lookup table.
+#[derive(Debug)]
+pub struct GridBuilder {
+    pub name: String,
+    pub background: f32,
+    pub index_to_world: DAffine3,
+    leaves: HashMap<IVec3, Leaf>,
+    tiles: Vec<Tile>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Grid {
+    pub name: String,
+    pub background: f32,
+    pub index_to_world: DAffine3,
+    pub world_to_index: DAffine3,
+    leaves: Vec<Leaf>,
+    /// Leaf origins (in voxels) in the order of `leaves`.
+    leaf_origins: Vec<IVec3>,
+    tiles: Vec<Tile>,
+    /// Leaf-slot table over [table_min, table_min + table_dim) in leaf units.
+    table: Vec<u32>,
+    table_min: IVec3,
+    table_dim: IVec3,
+}
+
+fn leaf_offset(local: IVec3) -> usize {
+    ((local.x * LEAF + local.y) * LEAF + local.z) as usize
+}
+
+fn leaf_key(ijk: IVec3) -> IVec3 {
+    IVec3::new(
+        ijk.x.div_euclid(LEAF),
+        ijk.y.div_euclid(LEAF),
+        ijk.z.div_euclid(LEAF),
+    )
+}
+
+impl GridBuilder {
+    pub fn new(name: impl Into<String>, background: f32, index_to_world: DAffine3) -> Self {
+        GridBuilder {
+            name: name.into(),
+            background,
+            index_to_world,
+            leaves: HashMap::new(),
+            tiles: Vec::new(),
+        }
+    }
+
+    /// Adds (or replaces) the leaf whose first voxel is `origin` (a multiple of 8).
+    pub fn leaf(&mut self, origin: IVec3, leaf: Leaf) {
+        self.leaves.insert(leaf_key(origin), leaf);
+    }
+
+    /// Sets one voxel, creating its leaf (filled with background, inactive) if needed.
+    pub fn set(&mut self, ijk: IVec3, value: f32, active: bool) {
+        let bg = self.background;
+        let leaf = self.leaves.entry(leaf_key(ijk)).or_insert_with(|| Leaf {
+            values: [bg; LEAF_VOXELS],
+            active: [0; 8],
+        });
+        let n = leaf_offset(ijk - leaf_key(ijk) * LEAF);
+        leaf.values[n] = value;
+        if active {
+            leaf.active[n / 64] |= 1 << (n % 64);
+        } else {
+            leaf.active[n / 64] &= !(1 << (n % 64));
+        }
+    }
+
+    pub fn tile(&mut self, tile: Tile) {
+        self.tiles.push(tile);
+    }
+
+    pub fn finish(self) -> Grid {
+        let mut keys: Vec<IVec3> = self.leaves.keys().copied().collect();
+        keys.sort_by_key(|k| (k.x, k.y, k.z));
+        let (table_min, table_dim) = if keys.is_empty() {
+            (IVec3::ZERO, IVec3::ZERO)
+        } else {
+            let lo = keys.iter().fold(IVec3::MAX, |a, &k| a.min(k));
+            let hi = keys.iter().fold(IVec3::MIN, |a, &k| a.max(k));
+            (lo, hi - lo + 1)
+        };
+        let mut table = vec![EMPTY; (table_dim.x as usize) * (table_dim.y as usize) * (table_dim.z as usize)];
+        let mut leaves = Vec::with_capacity(keys.len());
+        let mut leaf_origins = Vec::with_capacity(keys.len());
+        let mut map = self.leaves;
+        for k in keys {
+            let d = k - table_min;
+            table[((d.x * table_dim.y + d.y) * table_dim.z + d.z) as usize] = leaves.len() as u32;
+            leaves.push(map.remove(&k).expect("key from map"));
+            leaf_origins.push(k * LEAF);
+        }
+        Grid {
+            name: self.name,
+            background: self.background,
+            world_to_index: self.index_to_world.inverse(),
+            index_to_world: self.index_to_world,
+            leaves,
+            leaf_origins,
+            tiles: self.tiles,
+            table,
+            table_min,
+            table_dim,
+        }
+    }
+}
+
+impl Grid {
+    fn leaf_at(&self, ijk: IVec3) -> Option<&Leaf> {
+        let d = leaf_key(ijk) - self.table_min;
+        if d.cmplt(IVec3::ZERO).any() || d.cmpge(self.table_dim).any() {
+            return None;
+        }
+        let slot = self.table[((d.x * self.table_dim.y + d.y) * self.table_dim.z + d.z) as usize];
+        (slot != EMPTY).then(|| &self.leaves[slot as usize])
+    }
+
+    fn tile_at(&self, ijk: IVec3) -> Option<&Tile> {
+        self.tiles
+            .iter()
+            .find(|t| ijk.cmpge(t.min).all() && ijk.cmple(t.max).all())
+    }
+
+    /// Value of voxel `ijk` (background outside leaves and tiles).
+    pub fn value(&self, ijk: IVec3) -> f32 {
+        if let Some(l) = self.leaf_at(ijk) {
+            return l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)];
+        }
+        self.tile_at(ijk).map_or(self.background, |t| t.value)
+    }
+
+    /// Whether voxel `ijk` is active.
+    pub fn is_active(&self, ijk: IVec3) -> bool {
+        if let Some(l) = self.leaf_at(ijk) {
+            let n = leaf_offset(ijk - leaf_key(ijk) * LEAF);
+            return l.active[n / 64] >> (n % 64) & 1 == 1;
+        }
+        self.tile_at(ijk).is_some_and(|t| t.active)
+    }
+
+    /// Trilinear interpolation at continuous index-space position `p` (voxel centres at
+    /// integer coordinates).
+    pub fn sample_index(&self, p: DVec3) -> f32 {
+        let f = p.floor();
+        let t = (p - f).as_vec3();
+        let i = f.as_ivec3();
+        let v = |dx, dy, dz| self.value(i + IVec3::new(dx, dy, dz));
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let x00 = lerp(v(0, 0, 0), v(1, 0, 0), t.x);
+        let x10 = lerp(v(0, 1, 0), v(1, 1, 0), t.x);
+        let x01 = lerp(v(0, 0, 1), v(1, 0, 1), t.x);
+        let x11 = lerp(v(0, 1, 1), v(1, 1, 1), t.x);
+        lerp(lerp(x00, x10, t.y), lerp(x01, x11, t.y), t.z)
+    }
+
+    /// Trilinear value at world position `p`.
+    pub fn sample_world(&self, p: Vec3) -> f32 {
+        self.sample_index(self.world_to_index.transform_point3(p.as_dvec3()))
+    }
+
+    pub fn leaf_count(&self) -> usize {
+        self.leaves.len()
+    }
+
+    pub fn tiles(&self) -> &[Tile] {
+        &self.tiles
+    }
+
+    /// Leaves with their first voxel, in a fixed order.
+    pub fn leaves(&self) -> impl Iterator<Item = (IVec3, &Leaf)> {
+        self.leaf_origins.iter().copied().zip(self.leaves.iter())
+    }
+
+    /// Number of active voxels (leaf voxels plus active tile volumes).
+    pub fn active_voxels(&self) -> u64 {
+        let in_leaves: u64 = self
+            .leaves
+            .iter()
+            .map(|l| l.active.iter().map(|w| w.count_ones() as u64).sum::<u64>())
+            .sum();
+        let in_tiles: u64 = self
+            .tiles
+            .iter()
+            .filter(|t| t.active)
+            .map(|t| {
+                let d = (t.max - t.min + 1).as_i64vec3();
+                (d.x * d.y * d.z) as u64
+            })
+            .sum();
+        in_leaves + in_tiles
+    }
+
+    /// Inclusive index bounding box of the active voxels, if any.
+    pub fn active_bbox(&self) -> Option<(IVec3, IVec3)> {
+        let mut lo = IVec3::MAX;
+        let mut hi = IVec3::MIN;
+        for (origin, leaf) in self.leaves() {
+            for n in 0..LEAF_VOXELS {
+                if leaf.active[n / 64] >> (n % 64) & 1 == 1 {
+                    let n = n as i32;
+                    let p = origin + IVec3::new(n / 64, (n / 8) % 8, n % 8);
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+        }
+        for t in self.tiles.iter().filter(|t| t.active) {
+            lo = lo.min(t.min);
+            hi = hi.max(t.max);
+        }
+        (lo.x <= hi.x).then_some((lo, hi))
+    }
+
+    /// Bytes held by the grid's data structures.
+    pub fn memory_bytes(&self) -> usize {
+        self.leaves.len() * std::mem::size_of::<Leaf>()
+            + self.leaf_origins.len() * std::mem::size_of::<IVec3>()
+            + self.table.len() * 4
+            + self.tiles.len() * std::mem::size_of::<Tile>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sparse_lookup_and_trilinear() {
+        let mut b = GridBuilder::new("density", 0.0, DAffine3::IDENTITY);
+        b.set(IVec3::new(-1, 0, 0), 1.0, true);
+        b.set(IVec3::new(0, 0, 0), 3.0, true);
+        b.tile(Tile {
+            min: IVec3::new(16, 16, 16),
+            max: IVec3::new(23, 23, 23),
+            value: 2.0,
+            active: true,
+        });
+        let g = b.finish();
+        assert_eq!(g.value(IVec3::new(-1, 0, 0)), 1.0);
+        assert_eq!(g.value(IVec3::new(0, 0, 0)), 3.0);
+        assert_eq!(g.value(IVec3::new(20, 17, 23)), 2.0);
+        assert_eq!(g.value(IVec3::new(100, 0, 0)), 0.0);
+        assert!(g.is_active(IVec3::new(0, 0, 0)) && !g.is_active(IVec3::new(1, 0, 0)));
+        assert_eq!(g.active_voxels(), 2 + 512);
+        assert!((g.sample_index(DVec3::new(-0.25, 0.0, 0.0)) - 2.5).abs() < 1e-6);
+        assert!((g.sample_index(DVec3::new(0.0, 0.5, 0.0)) - 1.5).abs() < 1e-6);
+    }
+}
