@@ -48,6 +48,10 @@ pub struct RenderArgs {
     /// PNG preview exposure in stops (overrides [render].exposure).
     #[arg(long)]
     pub exposure: Option<f32>,
+    /// Grid free paths per camera segment per pass for the deep-shadow transmittance
+    /// (overrides [render].tr_samples; 1..=16, default 4).
+    #[arg(long, value_name = "M")]
+    pub tr_samples: Option<usize>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -133,6 +137,12 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     }
     if let Some(e) = args.exposure {
         settings.exposure = e;
+    }
+    if let Some(m) = args.tr_samples {
+        if !(1..=ppb::transport::transmittance::MAX_TR_SAMPLES).contains(&m) {
+            anyhow::bail!("--tr-samples: expected 1..=16, got {m}");
+        }
+        settings.tr_samples = m;
     }
     let out = args.output.clone().unwrap_or_else(|| {
         let stem = args.scene.file_stem().unwrap_or_default().to_string_lossy();

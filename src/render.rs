@@ -10,7 +10,7 @@ use crate::media::Media;
 use crate::scene::{Rgb, Scene};
 use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
 use crate::transport::camera::{CameraTracer, Pinhole};
-use crate::transport::freepath::Analytic;
+use crate::transport::freepath::Woodcock;
 use crate::transport::light::{LightSampler, LightTracer};
 use crate::transport::Counters;
 
@@ -53,7 +53,7 @@ pub struct PassResult {
 impl Renderer {
     pub fn new(scene: &Scene, settings: RenderSettings) -> Result<Self> {
         let geometry = Geometry::new(scene)?;
-        let media = Media::new(scene.media.clone());
+        let media = Media::with_grids(scene.media.clone(), scene.grid_media.clone());
         let camera = Pinhole::new(&scene.camera, settings.width, settings.height);
         let bounds = union(geometry.bounds(), media.bounds()).ok_or_else(|| {
             Error::Other("the scene has neither surfaces nor media to light".into())
@@ -93,7 +93,7 @@ impl Renderer {
     /// Renders pass `i` (1-based).
     pub fn pass(&self, i: u32) -> PassResult {
         let s = &self.settings;
-        let free_path = Analytic { media: &self.media };
+        let free_path = Woodcock { media: &self.media };
         let t0 = Instant::now();
         let lt = LightTracer {
             lights: &self.lights,
@@ -120,6 +120,7 @@ impl Renderer {
             beams: &light.beams,
             beam_map: beam_map.as_ref(),
             beam_radius: beam_r,
+            tr_samples: s.tr_samples,
             photons: &photons,
         };
         let (image, cam_counters) = ct.trace_pass(s.seed, i);

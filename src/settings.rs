@@ -22,6 +22,8 @@ pub struct RenderSettings {
     pub seed: u64,
     /// PNG preview exposure in stops.
     pub exposure: f32,
+    /// Grid free paths per camera segment per pass (M of the deep-shadow estimate).
+    pub tr_samples: usize,
 }
 
 impl Default for RenderSettings {
@@ -36,6 +38,7 @@ impl Default for RenderSettings {
             photon_radius: Radius::Auto,
             seed: 1,
             exposure: 0.0,
+            tr_samples: crate::transport::transmittance::DEFAULT_TR_SAMPLES,
         }
     }
 }

@@ -9,12 +9,16 @@ mkdir -p "$out"
 ppb=target/release/ppb
 ref=${PPB_SHARED:-../shared}/conformance
 printf '%-14s %7s %9s %9s %12s\n' scene passes seconds rel_l1 "rel_l1 4x4"
+# run SCENE PASSES|tSECONDS [MASK]: a pass count, or a time budget written as t600.
 run() {
-  local scene=$1 passes=$2 mask=${3:-}
-  local exr="$out/$scene-$passes.exr"
-  $ppb render "scenes/conformance/$scene/scene.toml" -q --passes "$passes" -o "$exr" --stats "$out/$scene-$passes.json"
-  local secs
-  secs=$(grep -m1 '"total"' "$out/$scene-$passes.json" | tr -dc '0-9.')
+  local scene=$1 budget=$2 mask=${3:-}
+  local exr="$out/$scene-$budget.exr" json="$out/$scene-$budget.json"
+  local limit=(--passes "$budget")
+  [[ $budget == t* ]] && limit=(--time "${budget#t}")
+  $ppb render "scenes/conformance/$scene/scene.toml" -q "${limit[@]}" -o "$exr" --stats "$json"
+  local secs passes
+  secs=$(grep -m1 '"total"' "$json" | tr -dc '0-9.')
+  passes=$(grep -m1 '"passes"' "$json" | tr -dc '0-9')
   local args=("$exr" "$ref/$scene/reference.exr" --block 4)
   [ -n "$mask" ] && args+=(--mask "$ref/$scene/$mask")
   local cmp
@@ -22,5 +26,5 @@ run() {
   printf '%-14s %7s %9.1f %9s %12s\n' "$scene" "$passes" "$secs" \
     "$(echo "$cmp" | awk '/^rel_l1 /{print $2}')" "$(echo "$cmp" | awk '/block means/{print $NF}')"
 }
-for p in ${FOG_PASSES:-64 256 1024}; do run fog-box "$p"; done
-for p in ${CAUSTIC_PASSES:-32 128 256}; do run glass-caustic "$p" emitter_mask.png; done
+for p in ${FOG_PASSES:-32 128 t300}; do run fog-box "$p"; done
+for p in ${CAUSTIC_PASSES:-32 128 t570}; do run glass-caustic "$p" emitter_mask.png; done

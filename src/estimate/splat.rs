@@ -13,6 +13,7 @@ use super::beams::{crossing, kernel};
 use crate::media::Media;
 use crate::scene::Rgb;
 use crate::transport::camera::Pinhole;
+use crate::transport::transmittance::GridTr;
 use crate::transport::Beam;
 
 /// Rows per parallel band.
@@ -26,6 +27,8 @@ const NEAR: f32 = 1e-3;
 pub struct Primary {
     pub dir: Vec3,
     pub t_surf: f32,
+    /// This pass's estimate of the grids' transmittance along the segment.
+    pub tr: GridTr,
 }
 
 /// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance
@@ -101,7 +104,8 @@ fn contribution(o: Vec3, p: &Primary, beam: &Beam, r: f32, media: &Media) -> Opt
     }
     let x = o + p.dir * c.t;
     let f = media.in_scatter(x, psi.dot(-p.dir));
-    let tr = (-media.optical_depth(&crate::geometry::Ray::new(o, p.dir), 0.0, c.t)).exp();
+    let tau = media.optical_depth(&crate::geometry::Ray::new(o, p.dir), 0.0, c.t);
+    let tr = (-tau).exp() * p.tr.eval(c.t);
     Some(f * Vec3::from(beam.power) * (kernel(c.dist, r) * tr / c.sin_theta))
 }
 

@@ -4,7 +4,7 @@
 use glam::Vec3;
 use smallvec::SmallVec;
 
-use super::Phase;
+use super::{GridMedium, Phase};
 use crate::geometry::Ray;
 use crate::scene::Rgb;
 
@@ -30,10 +30,12 @@ pub struct Segment {
 /// Ray pieces, kept on the stack for the usual handful of media.
 pub type Segments = SmallVec<[Segment; 4]>;
 
-/// All media of a scene, queried as one extinction field.
+/// All media of a scene, queried as one extinction field: homogeneous boxes (sampled and
+/// attenuated analytically) plus density grids (sampled by tracking).
 #[derive(Clone, Debug, Default)]
 pub struct Media {
     pub media: Vec<MediumDesc>,
+    pub grids: Vec<GridMedium>,
 }
 
 /// Parametric overlap of a ray with a box, clipped to [tmin, tmax].
@@ -48,24 +50,58 @@ pub fn ray_box(ray: &Ray, b: &[Vec3; 2], tmin: f32, tmax: f32) -> Option<(f32, f
 
 impl Media {
     pub fn new(media: Vec<MediumDesc>) -> Self {
-        Media { media }
+        Media {
+            media,
+            grids: Vec::new(),
+        }
+    }
+
+    pub fn with_grids(media: Vec<MediumDesc>, grids: Vec<GridMedium>) -> Self {
+        Media { media, grids }
     }
 
     pub fn is_empty(&self) -> bool {
-        self.media.is_empty()
+        self.media.is_empty() && self.grids.is_empty()
+    }
+
+    pub fn has_grids(&self) -> bool {
+        !self.grids.is_empty()
     }
 
     /// Union of the media boxes, if any.
     pub fn bounds(&self) -> Option<[Vec3; 2]> {
-        self.media.iter().fold(None, |acc, m| {
-            Some(match acc {
-                None => m.bounds,
-                Some([lo, hi]) => [lo.min(m.bounds[0]), hi.max(m.bounds[1])],
+        let boxes = self.media.iter().map(|m| m.bounds);
+        boxes
+            .chain(self.grids.iter().map(|g| g.bounds))
+            .fold(None, |acc, b| {
+                Some(match acc {
+                    None => b,
+                    Some([lo, hi]) => [lo.min(b[0]), hi.max(b[1])],
+                })
             })
-        })
     }
 
-    /// The constant-extinction pieces of the ray inside any medium, front to back.
+    /// Sum of the grids' extinction at `p` (1/m).
+    pub fn grid_sigma_t(&self, p: Vec3) -> f32 {
+        self.grids.iter().map(|g| g.sigma_t(p)).sum()
+    }
+
+    /// One constant bounding the grids' summed extinction everywhere (Woodcock's global
+    /// majorant).
+    pub fn grid_majorant(&self) -> f32 {
+        self.grids.iter().map(|g| g.majorant()).sum()
+    }
+
+    /// The span of the ray that overlaps any grid's box.
+    pub fn grid_interval(&self, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
+        self.grids
+            .iter()
+            .filter_map(|g| g.interval(ray, tmax))
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
+
+    /// The constant-extinction pieces of the ray inside any homogeneous medium, front to
+    /// back.
     pub fn segments(&self, ray: &Ray, tmax: f32) -> Segments {
         let spans: SmallVec<[(f32, f32, f32); 4]> = self
             .media
@@ -79,7 +115,27 @@ impl Media {
         out
     }
 
-    /// Integral of sigma_t along the ray over [t0, t1].
+    /// Merged spans of the ray inside any medium box (homogeneous or grid), front to back.
+    pub fn spans(&self, ray: &Ray, tmax: f32) -> SmallVec<[(f32, f32); 4]> {
+        let mut spans: SmallVec<[(f32, f32); 4]> = self
+            .media
+            .iter()
+            .map(|m| m.bounds)
+            .chain(self.grids.iter().map(|g| g.bounds))
+            .filter_map(|b| ray_box(ray, &b, 0.0, tmax))
+            .collect();
+        spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut out: SmallVec<[(f32, f32); 4]> = SmallVec::new();
+        for (a, b) in spans {
+            match out.last_mut() {
+                Some(last) if a <= last.1 => last.1 = last.1.max(b),
+                _ => out.push((a, b)),
+            }
+        }
+        out
+    }
+
+    /// Integral of the homogeneous media's sigma_t along the ray over [t0, t1].
     pub fn optical_depth(&self, ray: &Ray, t0: f32, t1: f32) -> f32 {
         self.media
             .iter()
@@ -87,7 +143,12 @@ impl Media {
             .sum()
     }
 
+    /// Total extinction at `p` (1/m).
     pub fn sigma_t(&self, p: Vec3) -> f32 {
+        self.homogeneous_sigma_t(p) + self.grid_sigma_t(p)
+    }
+
+    fn homogeneous_sigma_t(&self, p: Vec3) -> f32 {
         self.media
             .iter()
             .filter(|m| contains(&m.bounds, p))
@@ -97,24 +158,38 @@ impl Media {
 
     /// sum_i sigma_s,i(p) * phase_i(cos): what a beam estimate multiplies by (1/(m sr)).
     pub fn in_scatter(&self, p: Vec3, cos_theta: f32) -> Rgb {
-        self.media
-            .iter()
-            .filter(|m| contains(&m.bounds, p))
-            .map(|m| m.albedo * (m.sigma_t * m.phase.eval(cos_theta)))
+        self.components(p)
+            .map(|(s, albedo, phase)| albedo * (s * phase.eval(cos_theta)))
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
-    /// The medium a collision at `p` belongs to, chosen with probability sigma_t,i / sigma_t.
-    pub fn pick_collider(&self, p: Vec3, u: f32) -> Option<&MediumDesc> {
+    /// (sigma_t, albedo, phase) of every medium present at `p`.
+    fn components(&self, p: Vec3) -> impl Iterator<Item = (f32, Rgb, Phase)> + '_ {
+        let hom = self
+            .media
+            .iter()
+            .filter(move |m| contains(&m.bounds, p))
+            .map(|m| (m.sigma_t, m.albedo, m.phase));
+        let grids = self
+            .grids
+            .iter()
+            .map(move |g| (g.sigma_t(p), g.albedo, g.phase))
+            .filter(|c| c.0 > 0.0);
+        hom.chain(grids)
+    }
+
+    /// Albedo and phase function of the medium a collision at `p` belongs to, chosen with
+    /// probability sigma_t,i / sigma_t.
+    pub fn pick_collider(&self, p: Vec3, u: f32) -> Option<(Rgb, Phase)> {
         let total = self.sigma_t(p);
         let mut target = u * total;
         let mut last = None;
-        for m in self.media.iter().filter(|m| contains(&m.bounds, p)) {
-            last = Some(m);
-            if target < m.sigma_t {
-                return Some(m);
+        for (s, albedo, phase) in self.components(p) {
+            last = Some((albedo, phase));
+            if target < s {
+                return last;
             }
-            target -= m.sigma_t;
+            target -= s;
         }
         last
     }

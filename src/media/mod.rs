@@ -1,8 +1,11 @@
 //! Participating media: what the scene file describes ([`MediumDesc`]) and the combined
 //! extinction field the transport code samples ([`Media`]).
 pub mod grid;
+pub mod heterogeneous;
 pub mod homogeneous;
+pub mod procedural;
 pub mod phase;
 
+pub use heterogeneous::GridMedium;
 pub use homogeneous::{Media, MediumDesc};
 pub use phase::Phase;

@@ -7,7 +7,7 @@ pub mod toml;
 
 use glam::Vec3;
 
-use crate::media::MediumDesc;
+use crate::media::{GridMedium, MediumDesc};
 
 /// Linear RGB triple (radiance, power, reflectance, albedo).
 pub type Rgb = Vec3;
@@ -90,6 +90,7 @@ pub struct Scene {
     pub meshes: Vec<Mesh>,
     pub lights: Vec<Light>,
     pub media: Vec<MediumDesc>,
+    pub grid_media: Vec<GridMedium>,
 }
 
 impl Default for Camera {

@@ -6,8 +6,12 @@ use std::path::{Path, PathBuf};
 
 use super::{Camera, Imported, Light, Material, NamedMaterial, Scene};
 use crate::error::{Error, Result};
-use crate::media::{MediumDesc, Phase};
+use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
+use crate::media::{GridMedium, MediumDesc, Phase};
+use glam::DAffine3;
+use std::sync::Arc;
 use crate::settings::{Radius, RenderSettings};
+use crate::transport::transmittance::MAX_TR_SAMPLES;
 
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -39,6 +43,7 @@ struct FileRender {
     photon_radius: Option<FileRadius>,
     seed: Option<u64>,
     exposure: Option<f32>,
+    tr_samples: Option<usize>,
 }
 
 #[derive(Deserialize)]
@@ -118,6 +123,17 @@ enum FileMedium {
     Homogeneous {
         bounds: [[f32; 3]; 2],
         sigma_t: f32,
+        albedo: [f32; 3],
+        phase: Option<FilePhase>,
+    },
+    Noise {
+        preset: String,
+        bounds: [[f32; 3]; 2],
+        seed: Option<u32>,
+        octaves: Option<usize>,
+        frequency: Option<f64>,
+        resolution: Option<u32>,
+        density_scale: f32,
         albedo: [f32; 3],
         phase: Option<FilePhase>,
     },
@@ -236,7 +252,10 @@ pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
         scene.lights.push(light(&ck, i, l)?);
     }
     for (i, m) in file.medium.iter().enumerate() {
-        scene.media.push(medium(&ck, i, m)?);
+        match medium(&ck, i, m)? {
+            Medium::Homogeneous(h) => scene.media.push(h),
+            Medium::Grid(g) => scene.grid_media.push(g),
+        }
     }
     scene.camera = match (&file.camera, camera) {
         (Some(c), _) => camera_from(&ck, c)?,
@@ -283,7 +302,14 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         photon_radius: radius("render.photon_radius", &r.photon_radius)?,
         seed: r.seed.unwrap_or(d.seed),
         exposure: r.exposure.unwrap_or(d.exposure),
+        tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
     };
+    if !(1..=MAX_TR_SAMPLES).contains(&s.tr_samples) {
+        return Err(ck.err(
+            "render.tr_samples",
+            format!("expected 1..={MAX_TR_SAMPLES}, got {}", s.tr_samples),
+        ));
+    }
     for (field, v) in [("render.width", s.width), ("render.height", s.height)] {
         if v == 0 || v > 16384 {
             return Err(ck.err(field, format!("expected 1..=16384 pixels, got {v}")));
@@ -448,47 +474,97 @@ fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
     })
 }
 
-fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<MediumDesc> {
+enum Medium {
+    Homogeneous(MediumDesc),
+    Grid(GridMedium),
+}
+
+fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
     let f = |k: &str| format!("medium[{i}].{k}");
-    let FileMedium::Homogeneous {
-        bounds,
-        sigma_t,
-        albedo,
-        phase,
-    } = m;
-    let lo = ck.finite3(&f("bounds"), bounds[0])?;
-    let hi = ck.finite3(&f("bounds"), bounds[1])?;
+    match m {
+        FileMedium::Homogeneous {
+            bounds,
+            sigma_t,
+            albedo,
+            phase,
+        } => Ok(Medium::Homogeneous(MediumDesc {
+            bounds: check_bounds(ck, &f("bounds"), bounds)?,
+            sigma_t: ck.in_range(&f("sigma_t"), *sigma_t, 0.0, f32::MAX, "a finite number >= 0 (1/m)")?,
+            albedo: check_albedo(ck, &f("albedo"), albedo)?,
+            phase: check_phase(ck, &f("phase.g"), phase)?,
+        })),
+        FileMedium::Noise {
+            preset,
+            bounds,
+            seed,
+            octaves,
+            frequency,
+            resolution,
+            density_scale,
+            albedo,
+            phase,
+        } => {
+            let preset = match preset.as_str() {
+                "cloud" => Preset::Cloud,
+                "smoke" => Preset::Smoke,
+                "fog" => Preset::Fog,
+                other => {
+                    return Err(ck.err(&f("preset"), format!("expected cloud, smoke or fog, got \"{other}\"")))
+                }
+            };
+            let params = NoiseParams {
+                preset,
+                bounds: check_bounds(ck, &f("bounds"), bounds)?,
+                seed: seed.unwrap_or(1),
+                octaves: octaves.unwrap_or(6),
+                frequency: frequency.unwrap_or(2.0),
+                resolution: resolution.unwrap_or(DEFAULT_RESOLUTION),
+            };
+            if !(1..=12).contains(&params.octaves) {
+                return Err(ck.err(&f("octaves"), format!("expected 1..=12, got {}", params.octaves)));
+            }
+            if !(params.frequency.is_finite() && params.frequency > 0.0) {
+                return Err(ck.err(&f("frequency"), "expected a finite number > 0".into()));
+            }
+            if !(2..=1024).contains(&params.resolution) {
+                return Err(ck.err(&f("resolution"), format!("expected 2..=1024 voxels, got {}", params.resolution)));
+            }
+            let scale = ck.in_range(&f("density_scale"), *density_scale, 0.0, f32::MAX, "a finite number >= 0")?;
+            Ok(Medium::Grid(GridMedium::new(
+                Arc::new(procedural::build(&params)),
+                DAffine3::IDENTITY,
+                scale,
+                check_albedo(ck, &f("albedo"), albedo)?,
+                check_phase(ck, &f("phase.g"), phase)?,
+                format!("noise {:?} seed {}", params.preset, params.seed),
+            )))
+        }
+    }
+}
+
+fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3; 2]> {
+    let lo = ck.finite3(field, bounds[0])?;
+    let hi = ck.finite3(field, bounds[1])?;
     if !lo.cmplt(hi).all() {
-        return Err(ck.err(
-            &f("bounds"),
-            format!("expected min < max on every axis, got {bounds:?}"),
-        ));
+        return Err(ck.err(field, format!("expected min < max on every axis, got {bounds:?}")));
     }
-    let sigma_t = ck.in_range(
-        &f("sigma_t"),
-        *sigma_t,
-        0.0,
-        f32::MAX,
-        "a finite number >= 0 (1/m)",
-    )?;
-    let albedo = ck.nonneg3(&f("albedo"), *albedo)?;
-    if albedo.max_element() > 1.0 {
-        return Err(ck.err(
-            &f("albedo"),
-            format!("expected values in [0, 1], got {albedo:?}"),
-        ));
+    Ok([lo, hi])
+}
+
+fn check_albedo(ck: &Check, field: &str, albedo: &[f32; 3]) -> Result<Vec3> {
+    let a = ck.nonneg3(field, *albedo)?;
+    if a.max_element() > 1.0 {
+        return Err(ck.err(field, format!("expected values in [0, 1], got {albedo:?}")));
     }
-    let phase = match phase {
+    Ok(a)
+}
+
+fn check_phase(ck: &Check, field: &str, phase: &Option<FilePhase>) -> Result<Phase> {
+    Ok(match phase {
         None | Some(FilePhase::Isotropic) => Phase::ISOTROPIC,
         Some(FilePhase::Hg { g }) => Phase {
-            g: ck.in_range(&f("phase.g"), *g, -0.999, 0.999, "g in (-1, 1)")?,
+            g: ck.in_range(field, *g, -0.999, 0.999, "g in (-1, 1)")?,
         },
-    };
-    Ok(MediumDesc {
-        bounds: [lo, hi],
-        sigma_t,
-        albedo,
-        phase,
     })
 }
 

@@ -6,6 +6,7 @@ use rayon::prelude::*;
 
 use super::freepath::FreePath;
 use super::light::enters_glass;
+use super::transmittance::GridTr;
 use super::{Beam, Counters};
 use crate::bsdf;
 use crate::estimate::beams::BeamMap;
@@ -127,6 +128,8 @@ pub struct CameraTracer<'a> {
     /// cannot reach a specular surface.
     pub beam_map: Option<&'a BeamMap<'a>>,
     pub beam_radius: f32,
+    /// Grid free paths per camera segment per pass (deep-shadow transmittance).
+    pub tr_samples: usize,
     pub photons: &'a PhotonMap,
 }
 
@@ -183,6 +186,7 @@ impl CameraTracer<'_> {
         let mut primary = Primary {
             dir: ray.d,
             t_surf: f32::INFINITY,
+            tr: GridTr::CLEAR,
         };
         let state = PathState {
             beta: Rgb::ONE,
@@ -208,15 +212,16 @@ impl CameraTracer<'_> {
         while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
+            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c);
             if let Some(p) = primary.take() {
                 p.t_surf = t_surf;
+                p.tr = gtr;
             } else if !st.in_glass {
-                l += st.beta * self.media_segment(&ray, t_surf, c);
+                l += st.beta * self.media_segment(&ray, t_surf, &gtr, c);
             }
             if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
-                let t0 = std::time::Instant::now();
-                st.beta *= self.free_path.transmittance(&ray, 0.0, t_surf);
-                c.transmittance_seconds += t0.elapsed().as_secs_f64();
+                let tau = self.media.optical_depth(&ray, 0.0, t_surf);
+                st.beta *= (-tau).exp() * gtr.eval(t_surf);
             }
             let Some(h) = hit else { break };
             let material = match h.surface {
@@ -258,17 +263,35 @@ impl CameraTracer<'_> {
         l
     }
 
+    /// The grid part of the transmittance along a camera segment (clear when the segment
+    /// misses every grid or runs inside glass).
+    fn grid_transmittance(
+        &self,
+        ray: &Ray,
+        t_surf: f32,
+        in_glass: bool,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> GridTr {
+        if in_glass || self.media.grid_interval(ray, t_surf).is_none() {
+            return GridTr::CLEAR;
+        }
+        let t0 = std::time::Instant::now();
+        let tr = GridTr::sample(self.free_path, ray, t_surf, self.tr_samples, rng, c);
+        c.transmittance_seconds += t0.elapsed().as_secs_f64();
+        tr
+    }
+
     /// In-scattered radiance from the beams along [0, t_surf], attenuated to the ray origin.
-    fn media_segment(&self, ray: &Ray, t_surf: f32, c: &mut Counters) -> Rgb {
+    fn media_segment(&self, ray: &Ray, t_surf: f32, gtr: &GridTr, c: &mut Counters) -> Rgb {
         let Some(beams) = self.beam_map.filter(|_| !self.media.is_empty()) else {
             return Rgb::ZERO;
         };
         let mut l = Rgb::ZERO;
-        for s in self.media.segments(ray, t_surf).iter() {
-            let tau0 = self.media.optical_depth(ray, 0.0, s.t0);
-            let tr = |t: f32| (-(tau0 + s.sigma_t * (t - s.t0))).exp();
+        for (t0, t1) in self.media.spans(ray, t_surf) {
+            let tr = |t: f32| (-self.media.optical_depth(ray, 0.0, t)).exp() * gtr.eval(t);
             let scatter = |x: Vec3, cos: f32| self.media.in_scatter(x, cos);
-            l += beams.radiance(ray, s.t0, s.t1, scatter, tr, &mut c.beam_evaluations);
+            l += beams.radiance(ray, t0, t1, scatter, tr, &mut c.beam_evaluations);
         }
         l
     }

@@ -1,6 +1,8 @@
 //! Free-path sampling behind one interface: a sampler returns the distance to the next
-//! real collision along a ray (or none before `tmax`) and the transmittance of an interval.
-//! Homogeneous media are sampled exactly, piece by piece (the paper's eq. 4).
+//! real collision along a ray (or none before `tmax`). Homogeneous media are sampled
+//! exactly, piece by piece (the paper's eq. 4); density grids by Woodcock (delta) tracking
+//! with one global majorant. Extinctions add, so the collision is the nearer of the two
+//! parts' free paths.
 use crate::geometry::Ray;
 use crate::media::Media;
 use crate::sampling::Rng;
@@ -9,41 +11,91 @@ use crate::transport::Counters;
 pub trait FreePath: Sync {
     /// Distance to the next collision in (0, tmax), or None if the ray gets through.
     fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32>;
-    /// Transmittance between t0 and t1 along the ray.
-    fn transmittance(&self, ray: &Ray, t0: f32, t1: f32) -> f32;
+    /// A free path through the grids alone (camera transmittance estimates use these;
+    /// the homogeneous part of the transmittance is analytic).
+    fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters)
+        -> Option<f32>;
 }
 
-/// Exact sampling of piecewise-constant extinction: draw an optical depth -ln(1-u) and walk
+/// Exact free path through the homogeneous media: draw an optical depth -ln(1-u) and walk
 /// the constant pieces until it is used up.
-pub struct Analytic<'a> {
+pub fn sample_homogeneous(media: &Media, ray: &Ray, tmax: f32, rng: &mut Rng) -> Option<f32> {
+    if media.media.is_empty() {
+        return None;
+    }
+    let mut tau = -(1.0 - rng.f32()).ln();
+    for s in media.segments(ray, tmax).iter() {
+        let depth = s.sigma_t * (s.t1 - s.t0);
+        if tau < depth {
+            return Some(s.t0 + tau / s.sigma_t);
+        }
+        tau -= depth;
+    }
+    None
+}
+
+/// The paper's baseline: Woodcock tracking of the grids with one global majorant.
+pub struct Woodcock<'a> {
     pub media: &'a Media,
 }
 
-impl FreePath for Analytic<'_> {
+impl FreePath for Woodcock<'_> {
     fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
         c.free_paths += 1;
-        let segs = self.media.segments(ray, tmax);
-        let mut tau = -(1.0 - rng.f32()).ln();
-        for s in &segs {
-            let depth = s.sigma_t * (s.t1 - s.t0);
-            if tau < depth {
-                return Some(s.t0 + tau / s.sigma_t);
-            }
-            tau -= depth;
-        }
-        None
+        let t_hom = sample_homogeneous(self.media, ray, tmax, rng);
+        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
+            .or(t_hom)
     }
 
-    fn transmittance(&self, ray: &Ray, t0: f32, t1: f32) -> f32 {
-        (-self.media.optical_depth(ray, t0, t1)).exp()
+    fn sample_grids(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> Option<f32> {
+        let (t0, t1) = self.media.grid_interval(ray, tmax)?;
+        let majorant = self.media.grid_majorant();
+        if majorant <= 0.0 {
+            return None;
+        }
+        let mut t = t0;
+        loop {
+            t -= (1.0 - rng.f32()).ln() / majorant;
+            if t >= t1 {
+                return None;
+            }
+            c.density_lookups += 1;
+            if rng.f32() * majorant < self.media.grid_sigma_t(ray.at(t)) {
+                return Some(t);
+            }
+        }
     }
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::media::{MediumDesc, Phase};
     use glam::Vec3;
+
+    /// KS statistic of free paths against a CDF 1 - Tr(t); Tr(tmax) is the escape mass.
+    pub(crate) fn ks_against(samples: &mut [f32], tr: impl Fn(f32) -> f64, tmax: f32) -> (f64, f64) {
+        let n = samples.len();
+        samples.sort_by(f32::total_cmp);
+        let mut d_max = 0.0f64;
+        for (i, &t) in samples.iter().enumerate() {
+            if !t.is_finite() {
+                break;
+            }
+            let cdf = 1.0 - tr(t);
+            let hi = (i + 1) as f64 / n as f64;
+            let lo = i as f64 / n as f64;
+            d_max = d_max.max((hi - cdf).abs()).max((lo - cdf).abs());
+        }
+        let escaped = samples.iter().filter(|t| !t.is_finite()).count() as f64 / n as f64;
+        (d_max, escaped - tr(tmax))
+    }
 
     /// Free-path CDF against the analytic transmittance across two overlapping boxes:
     /// Kolmogorov-Smirnov statistic below the 0.1% critical value 1.95/sqrt(n).
@@ -63,36 +115,20 @@ mod tests {
                 phase: Phase::ISOTROPIC,
             },
         ]);
-        let fp = Analytic { media: &media };
+        let fp = Woodcock { media: &media };
         let ray = Ray::new(Vec3::new(-2.0, 0.1, 0.2), Vec3::X);
         let tmax = 5.0;
         let n = 20_000;
         let mut rng = Rng::new(42, 1);
         let mut c = Counters::default();
         let mut samples: Vec<f32> = (0..n)
-            .map(|_| {
-                fp.sample(&ray, tmax, &mut rng, &mut c)
-                    .unwrap_or(f32::INFINITY)
-            })
+            .map(|_| fp.sample(&ray, tmax, &mut rng, &mut c).unwrap_or(f32::INFINITY))
             .collect();
-        samples.sort_by(f32::total_cmp);
-        let mut d_max = 0.0f64;
-        for (i, &t) in samples.iter().enumerate() {
-            let cdf = if t.is_finite() {
-                1.0 - fp.transmittance(&ray, 0.0, t) as f64
-            } else {
-                1.0 - fp.transmittance(&ray, 0.0, tmax) as f64
-            };
-            let emp_hi = (i + 1) as f64 / n as f64;
-            let emp_lo = i as f64 / n as f64;
-            if t.is_finite() {
-                d_max = d_max.max((emp_hi - cdf).abs()).max((emp_lo - cdf).abs());
-            }
-        }
-        assert!(d_max < 1.95 / (n as f64).sqrt(), "KS D = {d_max}");
-        // Escape probability equals the total transmittance (binomial 5 sigma).
-        let escaped = samples.iter().filter(|t| !t.is_finite()).count() as f64 / n as f64;
-        let tr = fp.transmittance(&ray, 0.0, tmax) as f64;
-        assert!((escaped - tr).abs() < 5.0 * (tr * (1.0 - tr) / n as f64).sqrt());
+        let tr = |t: f32| (-media.optical_depth(&ray, 0.0, t) as f64).exp();
+        let (d, escape_err) = ks_against(&mut samples, tr, tmax);
+        assert!(d < 1.95 / (n as f64).sqrt(), "KS D = {d}");
+        let p = tr(tmax);
+        assert!(escape_err.abs() < 5.0 * (p * (1.0 - p) / n as f64).sqrt());
+        assert_eq!(c.density_lookups, 0);
     }
 }

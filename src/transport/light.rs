@@ -188,7 +188,9 @@ impl LightTracer<'_> {
                 None
             } else {
                 let t0 = std::time::Instant::now();
-                let c = self.free_path.sample(&ray, t_surf, rng, &mut out.counters);
+                let c = self
+                    .free_path
+                    .sample(&ray, t_surf, rng, &mut out.counters);
                 out.counters.free_path_seconds += t0.elapsed().as_secs_f64();
                 c
             };
@@ -198,16 +200,16 @@ impl LightTracer<'_> {
             }
             if let Some(t) = collision {
                 let p = ray.at(t);
-                let Some(m) = self.media.pick_collider(p, rng.f32()) else {
+                let Some((albedo, phase)) = self.media.pick_collider(p, rng.f32()) else {
                     return;
                 };
-                let q = m.albedo.max_element().min(1.0);
+                let q = albedo.max_element().min(1.0);
                 if q <= 0.0 || rng.f32() >= q {
                     return;
                 }
-                power *= m.albedo / q;
+                power *= albedo / q;
                 let (u1, u2) = (rng.f32(), rng.f32());
-                ray = Ray::new(p, m.phase.sample(ray.d, u1, u2));
+                ray = Ray::new(p, phase.sample(ray.d, u1, u2));
                 continue;
             }
             let Some(h) = hit else { return };
@@ -235,24 +237,7 @@ impl LightTracer<'_> {
     }
 
     fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
-        if self.media.is_empty() || !t_end.is_finite() && self.media.bounds().is_none() {
-            return;
-        }
-        let segs = self.media.segments(ray, t_end);
-        // Adjacent pieces of different extinction still form one continuous beam.
-        let mut start: Option<(f32, f32)> = None;
-        for s in segs.iter() {
-            start = match start {
-                Some((a, b)) if (s.t0 - b).abs() <= 1e-6 => Some((a, s.t1)),
-                Some((a, b)) => {
-                    out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
-                    out.counters.beams += 1;
-                    Some((s.t0, s.t1))
-                }
-                None => Some((s.t0, s.t1)),
-            };
-        }
-        if let Some((a, b)) = start {
+        for (a, b) in self.media.spans(ray, t_end) {
             out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
             out.counters.beams += 1;
         }

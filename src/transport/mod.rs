@@ -5,6 +5,7 @@
 pub mod camera;
 pub mod freepath;
 pub mod light;
+pub mod transmittance;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
