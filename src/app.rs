@@ -352,6 +352,49 @@ fn block_mask(mask: &[bool], width: usize, k: usize) -> Vec<bool> {
     out
 }
 
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Scene files (.toml).
+    #[arg(required = true)]
+    pub scenes: Vec<PathBuf>,
+    /// Passes per scene.
+    #[arg(long, default_value_t = 4)]
+    pub passes: u32,
+    /// Light paths per pass (default: the scene's).
+    #[arg(long)]
+    pub beams: Option<usize>,
+}
+
+pub fn bench(args: BenchArgs) -> Result<ExitCode> {
+    println!(
+        "{:<40} {:>10} {:>12} {:>10} {:>14} {:>14}",
+        "scene", "free paths", "lookups", "per path", "paths/s", "lookups/s"
+    );
+    for scene in &args.scenes {
+        let file = scene_toml::load(scene)?;
+        let mut settings = file.settings.clone();
+        if let Some(b) = args.beams {
+            settings.beams_per_pass = b.max(1);
+        }
+        let r = Renderer::new(&file.scene, settings)?;
+        let mut c = Counters::default();
+        for i in 1..=args.passes.max(1) {
+            c.add(&r.pass(i).counters);
+        }
+        let secs = (c.free_path_seconds + c.transmittance_seconds).max(1e-9);
+        println!(
+            "{:<40} {:>10} {:>12} {:>10.2} {:>14.0} {:>14.0}",
+            scene.display(),
+            c.free_paths,
+            c.density_lookups,
+            c.density_lookups as f64 / c.free_paths.max(1) as f64,
+            c.free_paths as f64 / secs,
+            c.density_lookups as f64 / secs
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 pub fn info(scene: &Path) -> Result<ExitCode> {
     let file = scene_toml::load(scene)?;
     let s = &file.scene;

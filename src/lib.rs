@@ -10,6 +10,7 @@ pub mod error;
 pub mod estimate;
 pub mod film;
 pub mod geometry;
+pub mod majorant;
 pub mod media;
 pub mod output;
 pub mod render;

@@ -38,6 +38,13 @@ sum|a - ref| / sum|ref| over all pixels and channels, relative RMSE and per-chan
 when rel_l1 exceeds --max-rel-l1, so CI pipelines can guard artifact renders."
     )]
     Compare(app::CompareArgs),
+    /// Free-path sampling benchmark: free paths and grid lookups per second on scenes.
+    #[command(
+        long_about = "Renders a few passes of each scene and prints a table of free-path \
+sampling work: free paths, density (grid) lookups, lookups per free path (a machine-independent \
+counter), and free paths and lookups per thread-second."
+    )]
+    Bench(app::BenchArgs),
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -50,6 +57,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render(args) => app::render(args),
         Command::Compare(args) => app::compare(args),
+        Command::Bench(args) => app::bench(args),
         Command::Info { scene } => app::info(&scene),
     };
     match result {

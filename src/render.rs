@@ -6,11 +6,12 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::{beams::BeamMap, photons::PhotonMap, radius};
 use crate::geometry::Geometry;
+use crate::majorant::Octree;
 use crate::media::Media;
 use crate::scene::{Rgb, Scene};
 use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
 use crate::transport::camera::{CameraTracer, Pinhole};
-use crate::transport::freepath::Woodcock;
+use crate::transport::freepath::{Adaptive, FreePath, Mode, Woodcock};
 use crate::transport::light::{LightSampler, LightTracer};
 use crate::transport::Counters;
 
@@ -26,6 +27,8 @@ pub struct Renderer {
     /// Whether camera paths can continue past a surface (then later camera segments need
     /// the beam BVH).
     has_specular: bool,
+    /// Majorant octree of each grid medium (same order as the scene's grid media).
+    octrees: Vec<Octree>,
 }
 
 /// Wall-clock seconds of one pass's stages.
@@ -51,7 +54,25 @@ pub struct PassResult {
 }
 
 impl Renderer {
+    /// A renderer that bakes the grids' octrees in memory (no cache).
     pub fn new(scene: &Scene, settings: RenderSettings) -> Result<Self> {
+        let octrees = scene
+            .grid_media
+            .iter()
+            .map(|g| Octree::build(g, settings.octree_depth))
+            .collect();
+        Self::with_octrees(scene, settings, octrees)
+    }
+
+    /// A renderer using already built (or cached) octrees, one per grid medium.
+    pub fn with_octrees(
+        scene: &Scene,
+        settings: RenderSettings,
+        octrees: Vec<Octree>,
+    ) -> Result<Self> {
+        if octrees.len() != scene.grid_media.len() {
+            return Err(Error::Other("one octree per grid medium expected".into()));
+        }
         let geometry = Geometry::new(scene)?;
         let media = Media::with_grids(scene.media.clone(), scene.grid_media.clone());
         let camera = Pinhole::new(&scene.camera, settings.width, settings.height);
@@ -79,6 +100,7 @@ impl Renderer {
             .iter()
             .any(|m| !matches!(m.material, crate::scene::Material::Lambert { .. }));
         Ok(Renderer {
+            octrees,
             has_specular,
             settings,
             geometry,
@@ -93,13 +115,21 @@ impl Renderer {
     /// Renders pass `i` (1-based).
     pub fn pass(&self, i: u32) -> PassResult {
         let s = &self.settings;
-        let free_path = Woodcock { media: &self.media };
+        let woodcock = Woodcock { media: &self.media };
+        let adaptive = Adaptive {
+            media: &self.media,
+            octrees: &self.octrees,
+        };
+        let free_path: &dyn FreePath = match s.free_path {
+            Mode::Adaptive => &adaptive,
+            Mode::Woodcock => &woodcock,
+        };
         let t0 = Instant::now();
         let lt = LightTracer {
             lights: &self.lights,
             geometry: &self.geometry,
             media: &self.media,
-            free_path: &free_path,
+            free_path,
         };
         let light = lt.trace_pass(s.seed, i, s.beams_per_pass);
         let t1 = Instant::now();
@@ -116,7 +146,7 @@ impl Renderer {
             camera: &self.camera,
             geometry: &self.geometry,
             media: &self.media,
-            free_path: &free_path,
+            free_path,
             beams: &light.beams,
             beam_map: beam_map.as_ref(),
             beam_radius: beam_r,

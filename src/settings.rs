@@ -24,6 +24,9 @@ pub struct RenderSettings {
     pub exposure: f32,
     /// Grid free paths per camera segment per pass (M of the deep-shadow estimate).
     pub tr_samples: usize,
+    pub free_path: crate::transport::freepath::Mode,
+    /// Depth of the majorant octree pyramid (2^depth finest cells per axis).
+    pub octree_depth: u32,
 }
 
 impl Default for RenderSettings {
@@ -39,6 +42,8 @@ impl Default for RenderSettings {
             seed: 1,
             exposure: 0.0,
             tr_samples: crate::transport::transmittance::DEFAULT_TR_SAMPLES,
+            free_path: crate::transport::freepath::Mode::Adaptive,
+            octree_depth: crate::majorant::octree::DEFAULT_MAX_DEPTH,
         }
     }
 }

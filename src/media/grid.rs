@@ -115,7 +115,8 @@ impl GridBuilder {
             let hi = keys.iter().fold(IVec3::MIN, |a, &k| a.max(k));
             (lo, hi - lo + 1)
         };
-        let mut table = vec![EMPTY; (table_dim.x as usize) * (table_dim.y as usize) * (table_dim.z as usize)];
+        let mut table =
+            vec![EMPTY; (table_dim.x as usize) * (table_dim.y as usize) * (table_dim.z as usize)];
         let mut leaves = Vec::with_capacity(keys.len());
         let mut leaf_origins = Vec::with_capacity(keys.len());
         let mut map = self.leaves;

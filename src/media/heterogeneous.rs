@@ -23,6 +23,9 @@ pub struct GridMedium {
     pub max_density: f32,
     /// Where the grid came from, for `ppb info` and errors.
     pub source: String,
+    /// blake3 of everything the field depends on (file bytes, grid name, scale,
+    /// transform, or procedural parameters): the octree cache key.
+    pub source_hash: [u8; 32],
 }
 
 impl GridMedium {
@@ -34,6 +37,7 @@ impl GridMedium {
         albedo: Rgb,
         phase: Phase,
         source: String,
+        source_hash: [u8; 32],
     ) -> Self {
         let index_to_world = transform * grid.index_to_world;
         let (max_density, bounds) = extent(&grid, &index_to_world);
@@ -46,6 +50,7 @@ impl GridMedium {
             bounds,
             max_density,
             source,
+            source_hash,
         }
     }
 

@@ -3,8 +3,8 @@
 pub mod grid;
 pub mod heterogeneous;
 pub mod homogeneous;
-pub mod procedural;
 pub mod phase;
+pub mod procedural;
 
 pub use heterogeneous::GridMedium;
 pub use homogeneous::{Media, MediumDesc};

@@ -102,8 +102,15 @@ mod tests {
         };
         let a = build(&p);
         let b = build(&p);
-        let c = build(&NoiseParams { seed: 8, ..p.clone() });
-        let probe = |g: &Grid| (0..24).map(|i| g.value(IVec3::new(i, 6, 12))).collect::<Vec<_>>();
+        let c = build(&NoiseParams {
+            seed: 8,
+            ..p.clone()
+        });
+        let probe = |g: &Grid| {
+            (0..24)
+                .map(|i| g.value(IVec3::new(i, 6, 12)))
+                .collect::<Vec<_>>()
+        };
         assert_eq!(probe(&a), probe(&b));
         assert_ne!(probe(&a), probe(&c));
         assert!(a.active_voxels() > 100);

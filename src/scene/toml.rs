@@ -8,10 +8,10 @@ use super::{Camera, Imported, Light, Material, NamedMaterial, Scene};
 use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc, Phase};
-use glam::DAffine3;
-use std::sync::Arc;
 use crate::settings::{Radius, RenderSettings};
 use crate::transport::transmittance::MAX_TR_SAMPLES;
+use glam::DAffine3;
+use std::sync::Arc;
 
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -303,6 +303,7 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         seed: r.seed.unwrap_or(d.seed),
         exposure: r.exposure.unwrap_or(d.exposure),
         tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
+        ..d
     };
     if !(1..=MAX_TR_SAMPLES).contains(&s.tr_samples) {
         return Err(ck.err(
@@ -489,7 +490,13 @@ fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
             phase,
         } => Ok(Medium::Homogeneous(MediumDesc {
             bounds: check_bounds(ck, &f("bounds"), bounds)?,
-            sigma_t: ck.in_range(&f("sigma_t"), *sigma_t, 0.0, f32::MAX, "a finite number >= 0 (1/m)")?,
+            sigma_t: ck.in_range(
+                &f("sigma_t"),
+                *sigma_t,
+                0.0,
+                f32::MAX,
+                "a finite number >= 0 (1/m)",
+            )?,
             albedo: check_albedo(ck, &f("albedo"), albedo)?,
             phase: check_phase(ck, &f("phase.g"), phase)?,
         })),
@@ -509,7 +516,10 @@ fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
                 "smoke" => Preset::Smoke,
                 "fog" => Preset::Fog,
                 other => {
-                    return Err(ck.err(&f("preset"), format!("expected cloud, smoke or fog, got \"{other}\"")))
+                    return Err(ck.err(
+                        &f("preset"),
+                        format!("expected cloud, smoke or fog, got \"{other}\""),
+                    ))
                 }
             };
             let params = NoiseParams {
@@ -521,15 +531,28 @@ fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
                 resolution: resolution.unwrap_or(DEFAULT_RESOLUTION),
             };
             if !(1..=12).contains(&params.octaves) {
-                return Err(ck.err(&f("octaves"), format!("expected 1..=12, got {}", params.octaves)));
+                return Err(ck.err(
+                    &f("octaves"),
+                    format!("expected 1..=12, got {}", params.octaves),
+                ));
             }
             if !(params.frequency.is_finite() && params.frequency > 0.0) {
                 return Err(ck.err(&f("frequency"), "expected a finite number > 0".into()));
             }
             if !(2..=1024).contains(&params.resolution) {
-                return Err(ck.err(&f("resolution"), format!("expected 2..=1024 voxels, got {}", params.resolution)));
+                return Err(ck.err(
+                    &f("resolution"),
+                    format!("expected 2..=1024 voxels, got {}", params.resolution),
+                ));
             }
-            let scale = ck.in_range(&f("density_scale"), *density_scale, 0.0, f32::MAX, "a finite number >= 0")?;
+            let scale = ck.in_range(
+                &f("density_scale"),
+                *density_scale,
+                0.0,
+                f32::MAX,
+                "a finite number >= 0",
+            )?;
+            let hash = blake3::hash(format!("noise {params:?} {scale}").as_bytes());
             Ok(Medium::Grid(GridMedium::new(
                 Arc::new(procedural::build(&params)),
                 DAffine3::IDENTITY,
@@ -537,6 +560,7 @@ fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
                 check_albedo(ck, &f("albedo"), albedo)?,
                 check_phase(ck, &f("phase.g"), phase)?,
                 format!("noise {:?} seed {}", params.preset, params.seed),
+                *hash.as_bytes(),
             )))
         }
     }
@@ -546,7 +570,10 @@ fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3
     let lo = ck.finite3(field, bounds[0])?;
     let hi = ck.finite3(field, bounds[1])?;
     if !lo.cmplt(hi).all() {
-        return Err(ck.err(field, format!("expected min < max on every axis, got {bounds:?}")));
+        return Err(ck.err(
+            field,
+            format!("expected min < max on every axis, got {bounds:?}"),
+        ));
     }
     Ok([lo, hi])
 }

@@ -188,9 +188,7 @@ impl LightTracer<'_> {
                 None
             } else {
                 let t0 = std::time::Instant::now();
-                let c = self
-                    .free_path
-                    .sample(&ray, t_surf, rng, &mut out.counters);
+                let c = self.free_path.sample(&ray, t_surf, rng, &mut out.counters);
                 out.counters.free_path_seconds += t0.elapsed().as_secs_f64();
                 c
             };
