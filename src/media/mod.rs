@@ -3,6 +3,7 @@
 pub mod grid;
 pub mod heterogeneous;
 pub mod homogeneous;
+pub mod nanovdb;
 pub mod phase;
 pub mod procedural;
 
