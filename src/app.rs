@@ -8,9 +8,11 @@ use std::time::{Duration, Instant};
 
 use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::film::Film;
+use ppb::majorant::{cache, Octree};
 use ppb::output::{self, Image};
 use ppb::render::{Renderer, Timings};
 use ppb::scene::toml as scene_toml;
+use ppb::transport::freepath::Mode;
 use ppb::transport::Counters;
 
 #[derive(Args)]
@@ -52,9 +54,116 @@ pub struct RenderArgs {
     /// (overrides [render].tr_samples; 1..=16, default 4).
     #[arg(long, value_name = "M")]
     pub tr_samples: Option<usize>,
+    /// Free-path sampler for light paths and camera transmittance: adaptive (majorant
+    /// octree, the default) or woodcock (one global majorant, the paper's baseline).
+    #[arg(long, value_enum, default_value_t = FreePathArg::Adaptive)]
+    pub free_path: FreePathArg,
+    /// Where baked octrees are cached (default: .ppb-cache/ beside the scene).
+    #[arg(long)]
+    pub cache_dir: Option<PathBuf>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FreePathArg {
+    Adaptive,
+    Woodcock,
+}
+
+#[derive(Args)]
+pub struct BuildArgs {
+    /// Scene file (.toml).
+    pub scene: PathBuf,
+    /// Cache folder (default: .ppb-cache/ beside the scene).
+    #[arg(long)]
+    pub cache_dir: Option<PathBuf>,
+    /// Only report whether each medium's cached octree is fresh; exit 1 if any is stale.
+    #[arg(long)]
+    pub check: bool,
+}
+
+fn cache_dir_for(scene: &Path, over: Option<&PathBuf>) -> PathBuf {
+    over.cloned().unwrap_or_else(|| {
+        scene
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .join(".ppb-cache")
+    })
+}
+
+/// The grids' octrees: loaded from a valid cache, else built and stored. One line per
+/// medium says which (unless quiet).
+fn prepare_octrees(
+    scene: &ppb::scene::Scene,
+    depth: u32,
+    dir: &Path,
+    quiet: bool,
+) -> Result<Vec<Octree>> {
+    let mut trees = Vec::with_capacity(scene.grid_media.len());
+    for (i, g) in scene.grid_media.iter().enumerate() {
+        let (status, tree) = cache::load(dir, g, depth);
+        let tree = match tree {
+            Some(t) => {
+                if !quiet {
+                    eprintln!("medium {i} ({}): octree loaded from cache", g.source);
+                }
+                t
+            }
+            None => {
+                let start = Instant::now();
+                let t = Octree::build(g, depth);
+                let stored = cache::store(dir, g, depth, &t);
+                if !quiet {
+                    let why = match &status {
+                        cache::Status::Invalid(w) => format!(" (cache invalid: {w})"),
+                        _ => String::new(),
+                    };
+                    let where_ = match &stored {
+                        Ok(p) => format!("stored in {}", p.display()),
+                        Err(e) => format!("not stored: {e}"),
+                    };
+                    eprintln!(
+                        "medium {i} ({}): octree built in {:.2} s, {} nodes{why}; {where_}",
+                        g.source,
+                        start.elapsed().as_secs_f64(),
+                        t.nodes.len()
+                    );
+                }
+                t
+            }
+        };
+        trees.push(tree);
+    }
+    Ok(trees)
+}
+
+pub fn build(args: BuildArgs) -> Result<ExitCode> {
+    let file = scene_toml::load(&args.scene)?;
+    let depth = file.settings.octree_depth;
+    let dir = cache_dir_for(&args.scene, args.cache_dir.as_ref());
+    if args.check {
+        let mut stale = false;
+        for (i, g) in file.scene.grid_media.iter().enumerate() {
+            let (status, _) = cache::load(&dir, g, depth);
+            let word = match &status {
+                cache::Status::Fresh => "fresh".to_string(),
+                cache::Status::Missing => "stale (no cache)".to_string(),
+                cache::Status::Invalid(w) => format!("stale ({w})"),
+            };
+            stale |= status != cache::Status::Fresh;
+            println!("medium {i} ({}): {word}", g.source);
+        }
+        return Ok(if stale {
+            ExitCode::from(1)
+        } else {
+            ExitCode::SUCCESS
+        });
+    }
+    prepare_octrees(&file.scene, depth, &dir, false)?;
+    Ok(ExitCode::SUCCESS)
 }
 
 #[derive(Args)]
@@ -151,7 +260,13 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let renderer = Renderer::new(&file.scene, settings.clone())?;
+    settings.free_path = match args.free_path {
+        FreePathArg::Adaptive => Mode::Adaptive,
+        FreePathArg::Woodcock => Mode::Woodcock,
+    };
+    let dir = cache_dir_for(&args.scene, args.cache_dir.as_ref());
+    let trees = prepare_octrees(&file.scene, settings.octree_depth, &dir, args.quiet)?;
+    let renderer = Renderer::with_octrees(&file.scene, settings.clone(), trees)?;
     let budget = args.time.map(Duration::from_secs_f64);
     let total_passes = if budget.is_some() {
         u32::MAX
@@ -363,39 +478,152 @@ pub struct BenchArgs {
     /// Light paths per pass (default: the scene's).
     #[arg(long)]
     pub beams: Option<usize>,
+    /// Image size override, e.g. 128x128.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
 }
 
+/// One benchmark run: free-path thread-seconds, wall seconds, counters.
+struct BenchRun {
+    fps: f64,
+    total: f64,
+    c: Counters,
+}
+
+fn bench_run(file: &scene_toml::SceneFile, args: &BenchArgs, mode: Mode) -> Result<BenchRun> {
+    let mut settings = file.settings.clone();
+    settings.free_path = mode;
+    if let Some(b) = args.beams {
+        settings.beams_per_pass = b.max(1);
+    }
+    if let Some((w, h)) = args.size {
+        settings.width = w;
+        settings.height = h;
+    }
+    let r = Renderer::new(&file.scene, settings)?;
+    let start = Instant::now();
+    let mut c = Counters::default();
+    for i in 1..=args.passes.max(1) {
+        c.add(&r.pass(i).counters);
+    }
+    let threads = rayon::current_num_threads() as f64;
+    Ok(BenchRun {
+        fps: (c.free_path_seconds + c.transmittance_seconds) / threads,
+        total: start.elapsed().as_secs_f64(),
+        c,
+    })
+}
+
+/// The paper's Table 1 on our scenes: free-path sampling (FPS) and total time with
+/// Woodcock and adaptive sampling, their ratios, and density lookups per free path.
 pub fn bench(args: BenchArgs) -> Result<ExitCode> {
     println!(
-        "{:<40} {:>10} {:>12} {:>10} {:>14} {:>14}",
-        "scene", "free paths", "lookups", "per path", "paths/s", "lookups/s"
+        "{:<28} {:>9} {:>9} {:>7} {:>9} {:>9} {:>7} {:>10} {:>10} {:>8}",
+        "scene",
+        "FPS wood",
+        "FPS adap",
+        "ratio",
+        "tot wood",
+        "tot adap",
+        "ratio",
+        "lkp/fp W",
+        "lkp/fp A",
+        "ratio"
     );
     for scene in &args.scenes {
         let file = scene_toml::load(scene)?;
-        let mut settings = file.settings.clone();
-        if let Some(b) = args.beams {
-            settings.beams_per_pass = b.max(1);
-        }
-        let r = Renderer::new(&file.scene, settings)?;
-        let mut c = Counters::default();
-        for i in 1..=args.passes.max(1) {
-            c.add(&r.pass(i).counters);
-        }
-        let secs = (c.free_path_seconds + c.transmittance_seconds).max(1e-9);
-        println!(
-            "{:<40} {:>10} {:>12} {:>10.2} {:>14.0} {:>14.0}",
-            scene.display(),
-            c.free_paths,
-            c.density_lookups,
-            c.density_lookups as f64 / c.free_paths.max(1) as f64,
-            c.free_paths as f64 / secs,
-            c.density_lookups as f64 / secs
+        let w = bench_run(&file, &args, Mode::Woodcock)?;
+        let a = bench_run(&file, &args, Mode::Adaptive)?;
+        let per = |r: &BenchRun| r.c.density_lookups as f64 / r.c.free_paths.max(1) as f64;
+        let name = scene.parent().and_then(|p| p.file_name()).map_or_else(
+            || scene.display().to_string(),
+            |n| n.to_string_lossy().into(),
         );
+        println!(
+            "{:<28} {:>9.2} {:>9.2} {:>7.2} {:>9.2} {:>9.2} {:>7.2} {:>10.2} {:>10.2} {:>8.2}",
+            name,
+            w.fps,
+            a.fps,
+            w.fps / a.fps.max(1e-9),
+            w.total,
+            a.total,
+            w.total / a.total.max(1e-9),
+            per(&w),
+            per(&a),
+            per(&w) / per(&a).max(1e-9)
+        );
+    }
+    println!("(seconds; FPS = free-path sampling incl. camera transmittance, thread-seconds / threads; lkp/fp = density lookups per free path)");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Prints one loaded grid: bounds, voxel size, counts, value range and memory.
+fn print_grid(g: &ppb::media::grid::Grid) {
+    let m = g.index_to_world.matrix3;
+    let voxel = glam::DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length());
+    println!(
+        "  voxel size   {:.6} {:.6} {:.6}",
+        voxel.x, voxel.y, voxel.z
+    );
+    if let Some((lo, hi)) = g.active_bbox() {
+        let wlo = g.index_to_world.transform_point3(lo.as_dvec3());
+        let whi = g.index_to_world.transform_point3(hi.as_dvec3());
+        println!("  index bbox   {lo} .. {hi} (inclusive)");
+        println!("  world bbox   {wlo:.4} .. {whi:.4} (voxel centres)");
+    }
+    let active = g.active_voxels();
+    println!(
+        "  active       {active} voxels, {} leaves, {} tiles",
+        g.leaf_count(),
+        g.tiles().len()
+    );
+    if let Some((lo, hi, mean)) = g.active_stats() {
+        println!("  values       min {lo} max {hi} mean {mean:.6} (active voxels)");
+    }
+    let bytes = g.memory_bytes();
+    println!(
+        "  memory       {:.2} MiB, {:.2} bytes per active voxel",
+        bytes as f64 / (1 << 20) as f64,
+        bytes as f64 / active.max(1) as f64
+    );
+}
+
+fn info_grid_file(path: &Path) -> Result<ExitCode> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let grids: Vec<(String, String, bool)> = match ext.as_str() {
+        "nvdb" => ppb::media::nanovdb::list_grids(path)?
+            .into_iter()
+            .map(|g| {
+                let float = g.grid_type == ppb::media::nanovdb::GridType::FLOAT;
+                (
+                    g.name,
+                    format!("{} ({:?})", g.grid_type.name(), g.codec),
+                    float,
+                )
+            })
+            .collect(),
+        _ => anyhow::bail!("{}: expected a .toml, .vdb or .nvdb file", path.display()),
+    };
+    println!("file         {}", path.display());
+    for (name, kind, float) in grids {
+        println!("grid \"{name}\": {kind}");
+        if float {
+            let g = match ext.as_str() {
+                _ => ppb::media::nanovdb::load_grid(path, &name)?,
+            };
+            print_grid(&g);
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
 
 pub fn info(scene: &Path) -> Result<ExitCode> {
+    if scene.extension().is_some_and(|e| e != "toml") {
+        return info_grid_file(scene);
+    }
     let file = scene_toml::load(scene)?;
     let s = &file.scene;
     println!("scene      {}", scene.display());
@@ -429,6 +657,13 @@ pub fn info(scene: &Path) -> Result<ExitCode> {
             "medium     homogeneous {:?}..{:?} sigma_t {} albedo {:?} g {}",
             m.bounds[0], m.bounds[1], m.sigma_t, m.albedo, m.phase.g
         );
+    }
+    for g in &s.grid_media {
+        println!(
+            "medium       grid {}: bounds {:?}..{:?}, density_scale {}, majorant {} 1/m, albedo {:?} g {}",
+            g.source, g.bounds[0], g.bounds[1], g.density_scale, g.majorant(), g.albedo, g.phase.g
+        );
+        print_grid(&g.grid);
     }
     for p in &file.sources[1..] {
         println!("source     {}", p.display());

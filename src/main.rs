@@ -38,6 +38,15 @@ sum|a - ref| / sum|ref| over all pixels and channels, relative RMSE and per-chan
 when rel_l1 exceeds --max-rel-l1, so CI pipelines can guard artifact renders."
     )]
     Compare(app::CompareArgs),
+    /// Bake the majorant octrees of a scene's grid media into the cache.
+    #[command(
+        long_about = "Bake the majorant octree of every density-grid medium of a scene into \
+the cache folder (default .ppb-cache/ beside the scene). The cache key is a blake3 hash of the \
+grid file's bytes, the grid name, density scale and transform, the build settings and the cache \
+format version. `ppb render` loads a valid cache and otherwise builds and stores it. With --check, \
+print fresh or stale per medium and exit 1 if any is stale."
+    )]
+    Build(app::BuildArgs),
     /// Free-path sampling benchmark: free paths and grid lookups per second on scenes.
     #[command(
         long_about = "Renders a few passes of each scene and prints a table of free-path \
@@ -58,6 +67,7 @@ fn main() -> ExitCode {
         Command::Render(args) => app::render(args),
         Command::Compare(args) => app::compare(args),
         Command::Bench(args) => app::bench(args),
+        Command::Build(args) => app::build(args),
         Command::Info { scene } => app::info(&scene),
     };
     match result {

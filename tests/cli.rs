@@ -228,3 +228,95 @@ fn failed_render_keeps_earlier_output() {
     assert_eq!(render(&s, &out).0, 2);
     assert_eq!(std::fs::read(&out).unwrap(), before);
 }
+
+const NOISE: &str = r#"
+[[medium]]
+type = "noise"
+preset = "smoke"
+bounds = [[-1, 0, -1], [1, 2, 1]]
+seed = 3
+resolution = 24
+density_scale = 6.0
+albedo = [0.9, 0.9, 0.9]
+"#;
+
+fn ppb_in(args: &[&str], scene: &Path) -> (i32, String, String) {
+    let o = ppb().args(args).arg(scene).output().unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stdout).into(),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+/// `ppb build` bakes, `--check` reports fresh/stale per medium, a parameter change makes
+/// the cache stale, and a corrupt or truncated cache file is detected and rebuilt.
+#[test]
+fn octree_cache_lifecycle() {
+    let dir = temp_dir("cache");
+    let s = scene(&dir, NOISE);
+    let (code, out, _) = ppb_in(&["build", "--check"], &s);
+    assert_eq!(code, 1, "{out}");
+    assert!(out.contains("stale"));
+    let (code, _, err) = ppb_in(&["build"], &s);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("built"), "{err}");
+    let (code, out, _) = ppb_in(&["build", "--check"], &s);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("fresh"));
+    let out_exr = dir.join("img.exr");
+    let o = ppb()
+        .args(["render", "-o"])
+        .arg(&out_exr)
+        .arg(&s)
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("loaded from cache"));
+
+    let cache = dir.join(".ppb-cache");
+    let file = std::fs::read_dir(&cache)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let bytes = std::fs::read(&file).unwrap();
+    for (what, damaged) in [
+        ("truncated", bytes[..bytes.len() / 2].to_vec()),
+        ("bit flip", {
+            let mut b = bytes.clone();
+            let i = b.len() - 7;
+            b[i] ^= 0x10;
+            b
+        }),
+        ("bad magic", {
+            let mut b = bytes.clone();
+            b[0] = b'X';
+            b
+        }),
+    ] {
+        std::fs::write(&file, &damaged).unwrap();
+        let (code, out, _) = ppb_in(&["build", "--check"], &s);
+        assert_eq!(code, 1, "{what}: {out}");
+        let o = ppb()
+            .args(["render", "-o"])
+            .arg(&out_exr)
+            .arg(&s)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.success() && err.contains("cache invalid"),
+            "{what}: {err}"
+        );
+        assert_eq!(
+            std::fs::read(&file).unwrap(),
+            bytes,
+            "{what}: not rebuilt identically"
+        );
+    }
+
+    rewrite(&s, "density_scale = 6.0", "density_scale = 7.0");
+    let (code, out, _) = ppb_in(&["build", "--check"], &s);
+    assert_eq!(code, 1, "{out}");
+}

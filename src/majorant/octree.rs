@@ -96,25 +96,30 @@ impl Octree {
         f: &mut impl FnMut(&Node, f32, f32) -> bool,
     ) -> bool {
         let n = &self.nodes[idx];
-        let Some((a, b)) = slab(ray, inv, n, t0, t1) else {
-            return true;
+        let (a, b) = if idx == 0 {
+            match slab(ray, inv, n, t0, t1) {
+                Some(s) => s,
+                None => return true,
+            }
+        } else {
+            (t0, t1)
         };
         if n.first_child == 0 {
             return f(n, a, b);
         }
-        let mut kids: [(f32, f32, u32); 8] = [(0.0, 0.0, 0); 8];
-        let mut k = 0;
-        for c in 0..8u32 {
-            let child = &self.nodes[(n.first_child + c) as usize];
-            if let Some((ca, cb)) = slab(ray, inv, child, a, b) {
-                kids[k] = (ca, cb, n.first_child + c);
-                k += 1;
+        // A ray's direction signs order the octants it can cross: visiting i ^ mask for
+        // i = 0..8 is front to back (the crossed octants form a chain in bit order).
+        let mask =
+            (ray.d.x < 0.0) as u32 | ((ray.d.y < 0.0) as u32) << 1 | ((ray.d.z < 0.0) as u32) << 2;
+        for i in 0..8u32 {
+            let c = (n.first_child + (i ^ mask)) as usize;
+            if let Some((ca, cb)) = slab(ray, inv, &self.nodes[c], a, b) {
+                if !self.walk_node(c, ray, inv, ca, cb, f) {
+                    return false;
+                }
             }
         }
-        let kids = &mut kids[..k];
-        kids.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
-        kids.iter()
-            .all(|&(ca, cb, c)| self.walk_node(c as usize, ray, inv, ca, cb, f))
+        true
     }
 }
 

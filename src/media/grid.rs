@@ -247,6 +247,30 @@ impl Grid {
         (lo.x <= hi.x).then_some((lo, hi))
     }
 
+    /// (min, max, mean) over the active voxels (tiles weighted by their volume).
+    pub fn active_stats(&self) -> Option<(f32, f32, f64)> {
+        let (mut lo, mut hi, mut sum, mut n) = (f32::MAX, f32::MIN, 0.0f64, 0u64);
+        for (_, leaf) in self.leaves() {
+            for (i, &v) in leaf.values.iter().enumerate() {
+                if leaf.active[i / 64] >> (i % 64) & 1 == 1 {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                    sum += v as f64;
+                    n += 1;
+                }
+            }
+        }
+        for t in self.tiles.iter().filter(|t| t.active) {
+            let d = (t.max - t.min + 1).as_i64vec3();
+            let count = (d.x * d.y * d.z) as u64;
+            lo = lo.min(t.value);
+            hi = hi.max(t.value);
+            sum += t.value as f64 * count as f64;
+            n += count;
+        }
+        (n > 0).then(|| (lo, hi, sum / n as f64))
+    }
+
     /// Bytes held by the grid's data structures.
     pub fn memory_bytes(&self) -> usize {
         self.leaves.len() * std::mem::size_of::<Leaf>()
