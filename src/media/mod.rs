@@ -2,6 +2,7 @@
 //! extinction field the transport code samples ([`Media`]).
 pub mod grid;
 pub mod homogeneous;
+pub mod openvdb;
 pub mod phase;
 
 pub use homogeneous::{Media, MediumDesc};
