@@ -605,6 +605,18 @@ fn info_grid_file(path: &Path) -> Result<ExitCode> {
                 )
             })
             .collect(),
+        "vdb" => ppb::media::openvdb::list_grids(path)?
+            .into_iter()
+            .map(|g| {
+                let float = g.value_type == "Tree_float_5_4_3";
+                let half = if g.half { ", saved as half" } else { "" };
+                (
+                    g.name,
+                    format!("{} (class {}{half})", g.value_type, g.class),
+                    float,
+                )
+            })
+            .collect(),
         _ => anyhow::bail!("{}: expected a .toml, .vdb or .nvdb file", path.display()),
     };
     println!("file         {}", path.display());
@@ -612,6 +624,7 @@ fn info_grid_file(path: &Path) -> Result<ExitCode> {
         println!("grid \"{name}\": {kind}");
         if float {
             let g = match ext.as_str() {
+                "vdb" => ppb::media::openvdb::load_grid(path, &name)?,
                 _ => ppb::media::nanovdb::load_grid(path, &name)?,
             };
             print_grid(&g);

@@ -4,6 +4,7 @@ pub mod grid;
 pub mod heterogeneous;
 pub mod homogeneous;
 pub mod nanovdb;
+pub mod openvdb;
 pub mod phase;
 pub mod procedural;
 

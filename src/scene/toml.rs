@@ -126,6 +126,14 @@ enum FileMedium {
         albedo: [f32; 3],
         phase: Option<FilePhase>,
     },
+    Grid {
+        path: PathBuf,
+        grid: Option<String>,
+        density_scale: f32,
+        albedo: [f32; 3],
+        phase: Option<FilePhase>,
+        transform: Option<FileTransform>,
+    },
     Noise {
         preset: String,
         bounds: [[f32; 3]; 2],
@@ -137,6 +145,14 @@ enum FileMedium {
         albedo: [f32; 3],
         phase: Option<FilePhase>,
     },
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileTransform {
+    translate: Option<[f64; 3]>,
+    rotate_deg: Option<[f64; 3]>,
+    scale: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -252,7 +268,10 @@ pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
         scene.lights.push(light(&ck, i, l)?);
     }
     for (i, m) in file.medium.iter().enumerate() {
-        match medium(&ck, i, m)? {
+        if let FileMedium::Grid { path: p, .. } = m {
+            sources.push(dir.join(p));
+        }
+        match medium(&ck, dir, i, m)? {
             Medium::Homogeneous(h) => scene.media.push(h),
             Medium::Grid(g) => scene.grid_media.push(g),
         }
@@ -480,9 +499,42 @@ enum Medium {
     Grid(GridMedium),
 }
 
-fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
+fn medium(ck: &Check, dir: &Path, i: usize, m: &FileMedium) -> Result<Medium> {
     let f = |k: &str| format!("medium[{i}].{k}");
     match m {
+        FileMedium::Grid {
+            path,
+            grid,
+            density_scale,
+            albedo,
+            phase,
+            transform,
+        } => {
+            let p = dir.join(path);
+            let name = grid.as_deref().unwrap_or("density");
+            let loaded = load_grid_file(ck, &f("path"), &p, name)?;
+            let scale = ck.in_range(
+                &f("density_scale"),
+                *density_scale,
+                0.0,
+                f32::MAX,
+                "a finite number >= 0",
+            )?;
+            let xf = grid_transform(ck, &f("transform"), transform.as_ref())?;
+            let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
+            let mut h = blake3::Hasher::new();
+            h.update(&bytes);
+            h.update(format!("{name} {scale} {xf:?}").as_bytes());
+            Ok(Medium::Grid(GridMedium::new(
+                Arc::new(loaded),
+                xf,
+                scale,
+                check_albedo(ck, &f("albedo"), albedo)?,
+                check_phase(ck, &f("phase.g"), phase)?,
+                format!("{} [{name}]", p.display()),
+                *h.finalize().as_bytes(),
+            )))
+        }
         FileMedium::Homogeneous {
             bounds,
             sigma_t,
@@ -564,6 +616,55 @@ fn medium(ck: &Check, i: usize, m: &FileMedium) -> Result<Medium> {
             )))
         }
     }
+}
+
+/// Loads grid `name` from a .vdb or .nvdb file.
+fn load_grid_file(
+    ck: &Check,
+    field: &str,
+    p: &Path,
+    name: &str,
+) -> Result<crate::media::grid::Grid> {
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "vdb" => crate::media::openvdb::load_grid(p, name),
+        "nvdb" => crate::media::nanovdb::load_grid(p, name),
+        _ => Err(ck.err(
+            field,
+            format!("{}: expected a .vdb or .nvdb file", p.display()),
+        )),
+    }
+}
+
+/// translate * rotate (X, then Y, then Z, degrees) * uniform scale, applied after the
+/// file's own index-to-world map.
+fn grid_transform(ck: &Check, field: &str, t: Option<&FileTransform>) -> Result<DAffine3> {
+    let Some(t) = t else {
+        return Ok(DAffine3::IDENTITY);
+    };
+    let tr = t.translate.unwrap_or([0.0; 3]);
+    let rot = t.rotate_deg.unwrap_or([0.0; 3]);
+    let scale = t.scale.unwrap_or(1.0);
+    if !tr.iter().chain(rot.iter()).all(|v| v.is_finite()) || !(scale.is_finite() && scale > 0.0) {
+        return Err(ck.err(
+            field,
+            "expected finite translate/rotate_deg and a scale > 0".into(),
+        ));
+    }
+    let q = glam::DQuat::from_euler(
+        glam::EulerRot::ZYX,
+        rot[2].to_radians(),
+        rot[1].to_radians(),
+        rot[0].to_radians(),
+    );
+    Ok(DAffine3::from_scale_rotation_translation(
+        glam::DVec3::splat(scale),
+        q,
+        glam::DVec3::from(tr),
+    ))
 }
 
 fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3; 2]> {
