@@ -13,6 +13,7 @@ use ppb::output::{self, Image};
 use ppb::render::{Renderer, Timings};
 use ppb::scene::toml as scene_toml;
 use ppb::transport::freepath::Mode;
+use ppb::transport::transmittance::TrMode;
 use ppb::transport::Counters;
 
 #[derive(Args)]
@@ -56,14 +57,31 @@ pub struct RenderArgs {
     pub tr_samples: Option<usize>,
     /// Free-path sampler for light paths and camera transmittance: adaptive (majorant
     /// octree, the default) or woodcock (one global majorant, the paper's baseline).
-    #[arg(long, value_enum, default_value_t = FreePathArg::Adaptive)]
-    pub free_path: FreePathArg,
+    #[arg(long, value_enum)]
+    pub free_path: Option<FreePathArg>,
+    /// Camera-segment transmittance through grids: ratio (ratio tracking on the octree's
+    /// local majorants, the default: lowest error per time in our measurements), stratified
+    /// (the paper's estimator: free paths of --tr-block passes drawn at once, M strata) or
+    /// random (M free paths per pass, the progressive deep shadow map).
+    #[arg(long, value_enum)]
+    pub transmittance: Option<TrArg>,
+    /// Passes whose free paths the stratified estimator draws at once (N, <= 64, a
+    /// multiple of --tr-samples). Memory: 4 N + 8 bytes per pixel (264 at N = 64).
+    #[arg(long, value_name = "N")]
+    pub tr_block: Option<usize>,
     /// Where baked octrees are cached (default: .ppb-cache/ beside the scene).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TrArg {
+    Random,
+    Stratified,
+    Ratio,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -260,10 +278,22 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    settings.free_path = match args.free_path {
-        FreePathArg::Adaptive => Mode::Adaptive,
-        FreePathArg::Woodcock => Mode::Woodcock,
-    };
+    if let Some(f) = args.free_path {
+        settings.free_path = match f {
+            FreePathArg::Adaptive => Mode::Adaptive,
+            FreePathArg::Woodcock => Mode::Woodcock,
+        };
+    }
+    if let Some(t) = args.transmittance {
+        settings.tr_mode = match t {
+            TrArg::Random => TrMode::Random,
+            TrArg::Stratified => TrMode::Stratified,
+            TrArg::Ratio => TrMode::Ratio,
+        };
+    }
+    if let Some(n) = args.tr_block {
+        settings.tr_block = n;
+    }
     let dir = cache_dir_for(&args.scene, args.cache_dir.as_ref());
     let trees = prepare_octrees(&file.scene, settings.octree_depth, &dir, args.quiet)?;
     let renderer = Renderer::with_octrees(&file.scene, settings.clone(), trees)?;
@@ -493,6 +523,8 @@ struct BenchRun {
 fn bench_run(file: &scene_toml::SceneFile, args: &BenchArgs, mode: Mode) -> Result<BenchRun> {
     let mut settings = file.settings.clone();
     settings.free_path = mode;
+    // Same camera estimator for both, so the table isolates the free-path sampler.
+    settings.tr_mode = TrMode::Random;
     if let Some(b) = args.beams {
         settings.beams_per_pass = b.max(1);
     }
@@ -554,6 +586,179 @@ pub fn bench(args: BenchArgs) -> Result<ExitCode> {
         );
     }
     println!("(seconds; FPS = free-path sampling incl. camera transmittance, thread-seconds / threads; lkp/fp = density lookups per free path)");
+    Ok(ExitCode::SUCCESS)
+}
+
+#[derive(Args)]
+pub struct BenchTrArgs {
+    /// Scenes, each optionally with its reference EXR: SCENE.toml[=REFERENCE.exr]. Without
+    /// one, the reference is a ppb render (adaptive + ratio) with 16x the longest run's passes.
+    #[arg(required = true)]
+    pub scenes: Vec<String>,
+    /// Pass counts at which the error is measured.
+    #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
+    pub passes: Vec<u32>,
+    /// Render size; the reference is averaged over blocks to match (must divide it).
+    #[arg(long, value_parser = parse_size, default_value = "128x128")]
+    pub size: (u32, u32),
+    /// Light paths per pass (default: the scene's).
+    #[arg(long)]
+    pub beams: Option<usize>,
+    /// Write every measurement as CSV (scene,config,passes,seconds,rel_l1) for tools/plot_tr.py.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+}
+
+/// The five configurations of the paper's Figs. 11 and 12.
+const TR_CONFIGS: [(&str, Mode, TrMode); 5] = [
+    ("woodcock+random (PPB)", Mode::Woodcock, TrMode::Random),
+    ("woodcock+stratified", Mode::Woodcock, TrMode::Stratified),
+    ("adaptive+random", Mode::Adaptive, TrMode::Random),
+    ("adaptive+stratified", Mode::Adaptive, TrMode::Stratified),
+    ("adaptive+ratio", Mode::Adaptive, TrMode::Ratio),
+];
+
+/// Renders `max` passes and returns (passes, seconds, image) at each checkpoint.
+fn render_checkpoints(
+    file: &scene_toml::SceneFile,
+    settings: &ppb::settings::RenderSettings,
+    checkpoints: &[u32],
+) -> Result<Vec<(u32, f64, Image)>> {
+    let r = Renderer::new(&file.scene, settings.clone())?;
+    let mut film = Film::new(settings.width, settings.height);
+    let mut out = Vec::new();
+    let start = Instant::now();
+    let max = checkpoints.iter().copied().max().unwrap_or(1);
+    for i in 1..=max {
+        film.add_pass(&r.pass(i).image);
+        if checkpoints.contains(&i) {
+            let img = Image {
+                width: film.width as usize,
+                height: film.height as usize,
+                pixels: film.image(),
+            };
+            out.push((i, start.elapsed().as_secs_f64(), img));
+        }
+    }
+    Ok(out)
+}
+
+/// Error at wall time `t` by log-log interpolation of (seconds, rel_l1) points,
+/// extrapolating with the last two points' slope.
+fn error_at_time(points: &[(f64, f64)], t: f64) -> f64 {
+    let n = points.len();
+    if n == 1 {
+        return points[0].1;
+    }
+    let i = points.windows(2).position(|w| t <= w[1].0).unwrap_or(n - 2);
+    let (a, b) = (points[i], points[i + 1]);
+    let slope = (b.1.ln() - a.1.ln()) / (b.0.ln() - a.0.ln());
+    (a.1.ln() + slope * (t.ln() - a.0.ln())).exp()
+}
+
+pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
+    let mut csv = String::from("scene,config,passes,seconds,rel_l1\n");
+    let mut checkpoints = args.passes.clone();
+    checkpoints.sort_unstable();
+    checkpoints.dedup();
+    let longest = *checkpoints.last().unwrap_or(&1);
+    for spec in &args.scenes {
+        let (scene, reference) = match spec.split_once('=') {
+            Some((s, r)) => (PathBuf::from(s), Some(PathBuf::from(r))),
+            None => (PathBuf::from(spec), None),
+        };
+        let file = scene_toml::load(&scene)?;
+        let mut base = file.settings.clone();
+        let full = Renderer::new(&file.scene, base.clone())?;
+        // Keep the full-resolution radii so the kernels blur the same world distance.
+        base.beam_radius = ppb::settings::Radius::Fixed(full.beam_r1);
+        base.photon_radius = ppb::settings::Radius::Fixed(full.photon_r1);
+        (base.width, base.height) = args.size;
+        if let Some(b) = args.beams {
+            base.beams_per_pass = b.max(1);
+        }
+        let (reference, ref_note) = match reference {
+            Some(p) => {
+                let img = output::read_exr(&p)?;
+                let k = img.width / base.width as usize;
+                if k == 0
+                    || img.width != k * base.width as usize
+                    || img.height != k * base.height as usize
+                {
+                    anyhow::bail!(
+                        "{}: {}x{} is not a multiple of {}x{}",
+                        p.display(),
+                        img.width,
+                        img.height,
+                        base.width,
+                        base.height
+                    );
+                }
+                (
+                    block_mean(&img, k),
+                    format!("{} ({k}x{k} block means)", p.display()),
+                )
+            }
+            None => {
+                let mut s = base.clone();
+                s.free_path = Mode::Adaptive;
+                s.tr_mode = TrMode::Ratio;
+                s.seed = base.seed + 1000;
+                let passes = 16 * longest;
+                eprintln!(
+                    "{}: rendering a reference with {passes} passes",
+                    scene.display()
+                );
+                let img = render_checkpoints(&file, &s, &[passes])?.remove(0).2;
+                (
+                    img,
+                    format!("ppb adaptive+ratio, {passes} passes, other seed"),
+                )
+            }
+        };
+        println!(
+            "\n{} at {}x{}; reference: {ref_note}",
+            scene.display(),
+            base.width,
+            base.height
+        );
+        println!(
+            "{:<24} {:>7} {:>9} {:>9}",
+            "config", "passes", "seconds", "rel_l1"
+        );
+        let mut curves = Vec::new();
+        for (name, mode, tr) in TR_CONFIGS {
+            let mut s = base.clone();
+            s.free_path = mode;
+            s.tr_mode = tr;
+            let mut curve = Vec::new();
+            for (passes, secs, img) in render_checkpoints(&file, &s, &checkpoints)? {
+                let e = metrics(&img, &reference, None)?.rel_l1;
+                println!("{name:<24} {passes:>7} {secs:>9.2} {e:>9.4}");
+                csv.push_str(&format!(
+                    "{},{name},{passes},{secs:.4},{e:.6}\n",
+                    scene.display()
+                ));
+                curve.push((secs, e));
+            }
+            curves.push((name, curve));
+        }
+        let budget = curves[0].1.last().map_or(1.0, |p| p.0);
+        let base_err = error_at_time(&curves[0].1, budget);
+        println!("equal time ({budget:.1} s, the PPB baseline's {longest} passes):");
+        for (name, curve) in &curves {
+            let e = error_at_time(curve, budget);
+            println!(
+                "  {name:<24} rel_l1 {e:.4}  ({:.2}x lower than PPB)",
+                base_err / e
+            );
+        }
+    }
+    if let Some(p) = &args.csv {
+        output::write_atomic(p, |tmp| {
+            std::fs::write(tmp, &csv).map_err(|e| ppb::error::Error::io(tmp, e))
+        })?;
+    }
     Ok(ExitCode::SUCCESS)
 }
 

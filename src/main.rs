@@ -54,6 +54,14 @@ sampling work: free paths, density (grid) lookups, lookups per free path (a mach
 counter), and free paths and lookups per thread-second."
     )]
     Bench(app::BenchArgs),
+    /// Transmittance benchmark: error vs passes and at equal time (the paper's Figs. 11, 12).
+    #[command(
+        long_about = "Renders each scene with woodcock+random (the original PPB), \
+woodcock+stratified, adaptive+random, adaptive+stratified and adaptive+ratio, and prints \
+rel_l1 against the reference at each pass count with the wall time, then every configuration's \
+error at the PPB baseline's wall time (log-log interpolation)."
+    )]
+    BenchTr(app::BenchTrArgs),
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -68,6 +76,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => app::compare(args),
         Command::Bench(args) => app::bench(args),
         Command::Build(args) => app::build(args),
+        Command::BenchTr(args) => app::bench_tr(args),
         Command::Info { scene } => app::info(&scene),
     };
     match result {

@@ -13,7 +13,9 @@ use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXE
 use crate::transport::camera::{CameraTracer, Pinhole};
 use crate::transport::freepath::{Adaptive, FreePath, Mode, Woodcock};
 use crate::transport::light::{LightSampler, LightTracer};
+use crate::transport::transmittance::{StratStore, TrMode, MAX_TR_BLOCK};
 use crate::transport::Counters;
+use std::sync::Mutex;
 
 pub struct Renderer {
     pub settings: RenderSettings,
@@ -29,6 +31,8 @@ pub struct Renderer {
     has_specular: bool,
     /// Majorant octree of each grid medium (same order as the scene's grid media).
     octrees: Vec<Octree>,
+    /// Stratified transmittance state carried across the passes of a block.
+    strat: Mutex<Option<StratStore>>,
 }
 
 /// Wall-clock seconds of one pass's stages.
@@ -99,7 +103,21 @@ impl Renderer {
             .materials
             .iter()
             .any(|m| !matches!(m.material, crate::scene::Material::Lambert { .. }));
+        if settings.tr_block == 0
+            || settings.tr_block > MAX_TR_BLOCK
+            || settings.tr_block % settings.tr_samples != 0
+        {
+            return Err(Error::Other(format!(
+                "tr_block must be a multiple of tr_samples ({}) in 1..={MAX_TR_BLOCK}, got {}",
+                settings.tr_samples, settings.tr_block
+            )));
+        }
+        let strat = (settings.tr_mode == TrMode::Stratified && media.has_grids()).then(|| {
+            let pixels = (settings.width * settings.height) as usize;
+            StratStore::new(pixels, settings.tr_block, settings.tr_samples)
+        });
         Ok(Renderer {
+            strat: Mutex::new(strat),
             octrees,
             has_specular,
             settings,
@@ -151,9 +169,11 @@ impl Renderer {
             beam_map: beam_map.as_ref(),
             beam_radius: beam_r,
             tr_samples: s.tr_samples,
+            tr_mode: s.tr_mode,
             photons: &photons,
         };
-        let (image, cam_counters) = ct.trace_pass(s.seed, i);
+        let mut strat = self.strat.lock().unwrap_or_else(|e| e.into_inner());
+        let (image, cam_counters) = ct.trace_pass(s.seed, i, strat.as_mut());
         let t3 = Instant::now();
         let mut counters = light.counters;
         counters.add(&cam_counters);

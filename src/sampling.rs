@@ -19,6 +19,10 @@ pub struct Rng {
 pub enum Stream {
     Light = 1,
     Camera = 2,
+    /// Pixel jitter kept for a stratified-transmittance block (keyed by block, not pass).
+    CameraJitter = 3,
+    /// The free paths drawn for a stratified block.
+    TrBlock = 4,
 }
 
 /// SplitMix64 finaliser: turns structured keys into well-spread seeds.

@@ -25,6 +25,10 @@ pub struct RenderSettings {
     /// Grid free paths per camera segment per pass (M of the deep-shadow estimate).
     pub tr_samples: usize,
     pub free_path: crate::transport::freepath::Mode,
+    /// Camera-segment transmittance estimator through grids.
+    pub tr_mode: crate::transport::transmittance::TrMode,
+    /// Passes whose free paths the stratified estimator draws at once (N).
+    pub tr_block: usize,
     /// Depth of the majorant octree pyramid (2^depth finest cells per axis).
     pub octree_depth: u32,
 }
@@ -43,6 +47,8 @@ impl Default for RenderSettings {
             exposure: 0.0,
             tr_samples: crate::transport::transmittance::DEFAULT_TR_SAMPLES,
             free_path: crate::transport::freepath::Mode::Adaptive,
+            tr_mode: crate::transport::transmittance::TrMode::Ratio,
+            tr_block: crate::transport::transmittance::DEFAULT_TR_BLOCK,
             octree_depth: crate::majorant::octree::DEFAULT_MAX_DEPTH,
         }
     }

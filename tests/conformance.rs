@@ -154,7 +154,11 @@ fn smoke_grid_matches_reference() {
     // Reference block noise 0.1 % (reference.json).
     let bound = 1.3 * o.noise + 0.001 + 0.01;
     assert!(o.rel_l1 < bound, "rel_l1 {} >= {bound}", o.rel_l1);
-    assert!((o.mean_ratio - 1.0).abs() < 0.01, "mean ratio {}", o.mean_ratio);
+    assert!(
+        (o.mean_ratio - 1.0).abs() < 0.01,
+        "mean ratio {}",
+        o.mean_ratio
+    );
 }
 
 #[test]
@@ -169,7 +173,11 @@ fn cloud_hg_matches_reference() {
     // Reference block noise 0.1 % (reference.json).
     let bound = 1.3 * o.noise + 0.001 + 0.01;
     assert!(o.rel_l1 < bound, "rel_l1 {} >= {bound}", o.rel_l1);
-    assert!((o.mean_ratio - 1.0).abs() < 0.01, "mean ratio {}", o.mean_ratio);
+    assert!(
+        (o.mean_ratio - 1.0).abs() < 0.01,
+        "mean ratio {}",
+        o.mean_ratio
+    );
 }
 
 /// Switching the free-path sampler changes only the noise: adaptive and Woodcock renders

@@ -13,7 +13,7 @@ use super::beams::{crossing, kernel};
 use crate::media::Media;
 use crate::scene::Rgb;
 use crate::transport::camera::Pinhole;
-use crate::transport::transmittance::GridTr;
+use crate::transport::transmittance::SegmentTr;
 use crate::transport::Beam;
 
 /// Rows per parallel band.
@@ -23,12 +23,12 @@ const NEAR: f32 = 1e-3;
 
 /// The first segment of every pixel's camera path: its jittered direction and the
 /// distance to the first surface (infinite if none).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct Primary {
     pub dir: Vec3,
     pub t_surf: f32,
     /// This pass's estimate of the grids' transmittance along the segment.
-    pub tr: GridTr,
+    pub tr: SegmentTr,
 }
 
 /// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance

@@ -80,46 +80,41 @@ impl Octree {
     }
 
     /// Visits the leaves the ray crosses in [0, tmax], front to back, with their parametric
-    /// span; stops when `f` returns false.
+    /// span; stops when `f` returns false. Leaf marching: find the leaf holding the point
+    /// just past the current distance by descending from the root (three comparisons per
+    /// level), use its exit distance as the next start.
     pub fn walk(&self, ray: &Ray, tmax: f32, mut f: impl FnMut(&Node, f32, f32) -> bool) {
         let inv = ray.d.recip();
-        self.walk_node(0, ray, inv, 0.0, tmax, &mut f);
+        let root = self.root();
+        let Some((t0, t1)) = slab(ray, inv, root, 0.0, tmax) else {
+            return;
+        };
+        let size = (Vec3::from(root.max) - Vec3::from(root.min)).max_element();
+        let nudge = size * 1e-6;
+        let (lo, hi) = (Vec3::from(root.min), Vec3::from(root.max));
+        let mut t = t0;
+        while t < t1 {
+            let p = ray.at(t + nudge).clamp(lo, hi);
+            let leaf = self.leaf_containing(p);
+            let a = (Vec3::from(leaf.min) - ray.o) * inv;
+            let b = (Vec3::from(leaf.max) - ray.o) * inv;
+            let exit = a.max(b).min_element().max(t + nudge).min(t1);
+            if !f(leaf, t, exit) {
+                return;
+            }
+            t = exit;
+        }
     }
 
-    fn walk_node(
-        &self,
-        idx: usize,
-        ray: &Ray,
-        inv: Vec3,
-        t0: f32,
-        t1: f32,
-        f: &mut impl FnMut(&Node, f32, f32) -> bool,
-    ) -> bool {
-        let n = &self.nodes[idx];
-        let (a, b) = if idx == 0 {
-            match slab(ray, inv, n, t0, t1) {
-                Some(s) => s,
-                None => return true,
-            }
-        } else {
-            (t0, t1)
-        };
-        if n.first_child == 0 {
-            return f(n, a, b);
+    /// The leaf whose box holds `p` (a point inside the root box).
+    fn leaf_containing(&self, p: Vec3) -> &Node {
+        let mut n = &self.nodes[0];
+        while n.first_child != 0 {
+            let c = 0.5 * (Vec3::from(n.min) + Vec3::from(n.max));
+            let o = (p.x >= c.x) as u32 | ((p.y >= c.y) as u32) << 1 | ((p.z >= c.z) as u32) << 2;
+            n = &self.nodes[(n.first_child + o) as usize];
         }
-        // A ray's direction signs order the octants it can cross: visiting i ^ mask for
-        // i = 0..8 is front to back (the crossed octants form a chain in bit order).
-        let mask =
-            (ray.d.x < 0.0) as u32 | ((ray.d.y < 0.0) as u32) << 1 | ((ray.d.z < 0.0) as u32) << 2;
-        for i in 0..8u32 {
-            let c = (n.first_child + (i ^ mask)) as usize;
-            if let Some((ca, cb)) = slab(ray, inv, &self.nodes[c], a, b) {
-                if !self.walk_node(c, ray, inv, ca, cb, f) {
-                    return false;
-                }
-            }
-        }
-        true
+        n
     }
 }
 

@@ -9,7 +9,8 @@ use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc, Phase};
 use crate::settings::{Radius, RenderSettings};
-use crate::transport::transmittance::MAX_TR_SAMPLES;
+use crate::transport::freepath::Mode;
+use crate::transport::transmittance::{TrMode, MAX_TR_BLOCK, MAX_TR_SAMPLES};
 use glam::DAffine3;
 use std::sync::Arc;
 
@@ -44,6 +45,9 @@ struct FileRender {
     seed: Option<u64>,
     exposure: Option<f32>,
     tr_samples: Option<usize>,
+    transmittance: Option<String>,
+    tr_block: Option<usize>,
+    free_path: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -322,8 +326,41 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         seed: r.seed.unwrap_or(d.seed),
         exposure: r.exposure.unwrap_or(d.exposure),
         tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
+        tr_block: r.tr_block.unwrap_or(d.tr_block),
+        tr_mode: match r.transmittance.as_deref() {
+            None => d.tr_mode,
+            Some("random") => TrMode::Random,
+            Some("stratified") => TrMode::Stratified,
+            Some("ratio") => TrMode::Ratio,
+            Some(other) => {
+                return Err(ck.err(
+                    "render.transmittance",
+                    format!("expected random, stratified or ratio, got \"{other}\""),
+                ))
+            }
+        },
+        free_path: match r.free_path.as_deref() {
+            None => d.free_path,
+            Some("adaptive") => Mode::Adaptive,
+            Some("woodcock") => Mode::Woodcock,
+            Some(other) => {
+                return Err(ck.err(
+                    "render.free_path",
+                    format!("expected adaptive or woodcock, got \"{other}\""),
+                ))
+            }
+        },
         ..d
     };
+    if s.tr_block == 0 || s.tr_block > MAX_TR_BLOCK || s.tr_block % s.tr_samples.max(1) != 0 {
+        return Err(ck.err(
+            "render.tr_block",
+            format!(
+                "expected a multiple of tr_samples in 1..={MAX_TR_BLOCK}, got {}",
+                s.tr_block
+            ),
+        ));
+    }
     if !(1..=MAX_TR_SAMPLES).contains(&s.tr_samples) {
         return Err(ck.err(
             "render.tr_samples",

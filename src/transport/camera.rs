@@ -6,8 +6,8 @@ use rayon::prelude::*;
 
 use super::freepath::FreePath;
 use super::light::enters_glass;
-use super::transmittance::GridTr;
-use super::{Beam, Counters};
+use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode};
+use super::{timed, Beam, Counters};
 use crate::bsdf;
 use crate::estimate::beams::BeamMap;
 use crate::estimate::photons::PhotonMap;
@@ -128,26 +128,61 @@ pub struct CameraTracer<'a> {
     /// cannot reach a specular surface.
     pub beam_map: Option<&'a BeamMap<'a>>,
     pub beam_radius: f32,
-    /// Grid free paths per camera segment per pass (deep-shadow transmittance).
+    /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
+    pub tr_mode: TrMode,
     pub photons: &'a PhotonMap,
 }
 
 impl CameraTracer<'_> {
-    /// Radiance of every pixel for one pass (row-major, top row first).
-    pub fn trace_pass(&self, seed: u64, pass: u32) -> (Vec<Rgb>, Counters) {
+    /// Radiance of every pixel for one pass (row-major, top row first). `strat` holds the
+    /// stratified free paths when that estimator is on.
+    pub fn trace_pass(
+        &self,
+        seed: u64,
+        pass: u32,
+        strat: Option<&mut StratStore>,
+    ) -> (Vec<Rgb>, Counters) {
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        let rows: Vec<(Vec<(Rgb, Primary)>, Counters)> = (0..h)
+        // Stratified blocks of N passes keep each pixel's jitter for the whole block.
+        let (block, regenerate, mut rows_mut) = match strat {
+            Some(st) => {
+                let block = (pass - 1) / st.n as u32;
+                let regen = st.block != Some(block);
+                st.block = Some(block);
+                (
+                    Some(block),
+                    regen,
+                    st.rows_mut(w).into_iter().map(Some).collect(),
+                )
+            }
+            None => (None, false, Vec::new()),
+        };
+        rows_mut.resize_with(h, || None);
+        let rows: Vec<(Vec<(Rgb, Primary)>, Counters)> = rows_mut
             .into_par_iter()
-            .map(|y| {
+            .enumerate()
+            .map(|(y, mut row_store)| {
                 let mut c = Counters::default();
                 let row = (0..w)
                     .map(|x| {
                         let idx = (y * w + x) as u64;
                         let mut rng = Rng::for_path(seed, pass, Stream::Camera, idx);
-                        let j = rng.vec2();
+                        let j = match block {
+                            Some(b) => Rng::for_path(seed, b, Stream::CameraJitter, idx).vec2(),
+                            None => rng.vec2(),
+                        };
                         let ray = self.camera.ray(x as f32 + j.x, y as f32 + j.y);
-                        self.radiance(ray, &mut rng, &mut c)
+                        let strat = row_store.as_mut().zip(block).map(|((paths, used), b)| {
+                            let n = paths.len() / w;
+                            StratPixel {
+                                paths: &mut paths[x * n..(x + 1) * n],
+                                used: &mut used[x],
+                                regenerate,
+                                block_rng: Rng::for_path(seed, b, Stream::TrBlock, idx),
+                            }
+                        });
+                        self.radiance(ray, &mut rng, &mut c, strat)
                     })
                     .collect();
                 (row, c)
@@ -181,19 +216,25 @@ impl CameraTracer<'_> {
 
     /// Radiance along one camera path, except the beam estimate of its first segment,
     /// which [`splat`] adds for all pixels at once; returns that segment too.
-    fn radiance(&self, ray: Ray, rng: &mut Rng, c: &mut Counters) -> (Rgb, Primary) {
+    fn radiance(
+        &self,
+        ray: Ray,
+        rng: &mut Rng,
+        c: &mut Counters,
+        strat: Option<StratPixel>,
+    ) -> (Rgb, Primary) {
         c.camera_rays += 1;
         let mut primary = Primary {
             dir: ray.d,
             t_surf: f32::INFINITY,
-            tr: GridTr::CLEAR,
+            tr: SegmentTr::Clear,
         };
         let state = PathState {
             beta: Rgb::ONE,
             depth: 0,
             in_glass: false,
         };
-        let l = self.follow(ray, state, rng, c, Some(&mut primary));
+        let l = self.follow(ray, state, rng, c, Some(&mut primary), strat);
         (l, primary)
     }
 
@@ -207,15 +248,16 @@ impl CameraTracer<'_> {
         rng: &mut Rng,
         c: &mut Counters,
         mut primary: Option<&mut Primary>,
+        mut strat: Option<StratPixel>,
     ) -> Rgb {
         let mut l = Rgb::ZERO;
         while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
-            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c);
+            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat.take());
             if let Some(p) = primary.take() {
                 p.t_surf = t_surf;
-                p.tr = gtr;
+                p.tr = gtr.clone();
             } else if !st.in_glass {
                 l += st.beta * self.media_segment(&ray, t_surf, &gtr, c);
             }
@@ -248,7 +290,7 @@ impl CameraTracer<'_> {
                             in_glass: enters_glass(&material, dir, h.ng),
                             ..st
                         };
-                        l += self.follow(leave(&h, dir), next, rng, c, None);
+                        l += self.follow(leave(&h, dir), next, rng, c, None, None);
                     }
                     break;
                 }
@@ -272,18 +314,24 @@ impl CameraTracer<'_> {
         in_glass: bool,
         rng: &mut Rng,
         c: &mut Counters,
-    ) -> GridTr {
+        strat: Option<StratPixel>,
+    ) -> SegmentTr {
         if in_glass || self.media.grid_interval(ray, t_surf).is_none() {
-            return GridTr::CLEAR;
+            return SegmentTr::Clear;
         }
-        let t0 = std::time::Instant::now();
-        let tr = GridTr::sample(self.free_path, ray, t_surf, self.tr_samples, rng, c);
-        c.transmittance_seconds += t0.elapsed().as_secs_f64();
+        let (fp, m) = (self.free_path, self.tr_samples);
+        let (mut tick, mut secs) = (c.timing_ticks, c.transmittance_seconds);
+        let tr = timed(&mut tick, &mut secs, || match (self.tr_mode, strat) {
+            (TrMode::Ratio, _) => SegmentTr::ratio(fp, ray, t_surf, rng, c),
+            (TrMode::Stratified, Some(mut px)) => px.pick(fp, ray, t_surf, m, rng, c),
+            _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
+        });
+        (c.timing_ticks, c.transmittance_seconds) = (tick, secs);
         tr
     }
 
     /// In-scattered radiance from the beams along [0, t_surf], attenuated to the ray origin.
-    fn media_segment(&self, ray: &Ray, t_surf: f32, gtr: &GridTr, c: &mut Counters) -> Rgb {
+    fn media_segment(&self, ray: &Ray, t_surf: f32, gtr: &SegmentTr, c: &mut Counters) -> Rgb {
         let Some(beams) = self.beam_map.filter(|_| !self.media.is_empty()) else {
             return Rgb::ZERO;
         };

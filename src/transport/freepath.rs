@@ -7,6 +7,7 @@ use crate::geometry::Ray;
 use crate::majorant::Octree;
 use crate::media::{GridMedium, Media};
 use crate::sampling::Rng;
+use crate::transport::transmittance::RatioSteps;
 use crate::transport::Counters;
 
 pub trait FreePath: Sync {
@@ -15,6 +16,16 @@ pub trait FreePath: Sync {
     /// A free path through the grids alone (camera transmittance estimates use these;
     /// the homogeneous part of the transmittance is analytic).
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32>;
+    /// Ratio tracking through the grids: pushes (t, 1 - sigma_t(x) / majorant) for every
+    /// tentative collision in [0, tmax], in no particular order.
+    fn ratio_steps(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+        out: &mut RatioSteps,
+    );
 }
 
 /// Exact free path through the homogeneous media: draw an optical depth -ln(1-u) and walk
@@ -65,6 +76,36 @@ impl FreePath for Woodcock<'_> {
             }
         }
     }
+
+    fn ratio_steps(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+        out: &mut RatioSteps,
+    ) {
+        let Some((t0, t1)) = self.media.grid_interval(ray, tmax) else {
+            return;
+        };
+        let majorant = self.media.grid_majorant();
+        if majorant <= 0.0 {
+            return;
+        }
+        let mut t = t0;
+        loop {
+            t -= (1.0 - rng.f32()).ln() / majorant;
+            if t >= t1 {
+                return;
+            }
+            c.density_lookups += 1;
+            let f = 1.0 - self.media.grid_sigma_t(ray.at(t)) / majorant;
+            out.push((t, f.max(0.0)));
+            if f <= 0.0 {
+                return;
+            }
+        }
+    }
 }
 
 /// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
@@ -95,6 +136,37 @@ impl FreePath for Adaptive<'_> {
             }
         }
         best
+    }
+
+    fn ratio_steps(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+        out: &mut RatioSteps,
+    ) {
+        for (g, tree) in self.media.grids.iter().zip(self.octrees) {
+            tree.walk(ray, tmax, |leaf, a, b| {
+                let majorant = leaf.majorant;
+                if majorant <= 0.0 {
+                    return true;
+                }
+                let mut t = a;
+                loop {
+                    t -= (1.0 - rng.f32()).ln() / majorant;
+                    if t >= b {
+                        return true;
+                    }
+                    c.density_lookups += 1;
+                    let f = 1.0 - g.sigma_t(ray.at(t)) / majorant;
+                    out.push((t, f.max(0.0)));
+                    if f <= 0.0 {
+                        return false;
+                    }
+                }
+            });
+        }
     }
 }
 

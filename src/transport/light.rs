@@ -4,7 +4,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::freepath::FreePath;
-use super::{Beam, Counters, Photon, MAX_DEPTH};
+use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
 use crate::geometry::{Geometry, Ray, Surface, EPS};
 use crate::media::Media;
@@ -187,9 +187,12 @@ impl LightTracer<'_> {
             let collision = if self.media.is_empty() || in_glass {
                 None
             } else {
-                let t0 = std::time::Instant::now();
-                let c = self.free_path.sample(&ray, t_surf, rng, &mut out.counters);
-                out.counters.free_path_seconds += t0.elapsed().as_secs_f64();
+                let cn = &mut out.counters;
+                let (mut tick, mut secs) = (cn.timing_ticks, cn.free_path_seconds);
+                let c = timed(&mut tick, &mut secs, || {
+                    self.free_path.sample(&ray, t_surf, rng, cn)
+                });
+                (cn.timing_ticks, cn.free_path_seconds) = (tick, secs);
                 c
             };
             let t_end = collision.unwrap_or(t_surf);
