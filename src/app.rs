@@ -562,6 +562,7 @@ pub fn bench(args: BenchArgs) -> Result<ExitCode> {
         "lkp/fp A",
         "ratio"
     );
+    let mut rates = Vec::new();
     for scene in &args.scenes {
         let file = scene_toml::load(scene)?;
         let w = bench_run(&file, &args, Mode::Woodcock)?;
@@ -584,8 +585,30 @@ pub fn bench(args: BenchArgs) -> Result<ExitCode> {
             per(&a),
             per(&w) / per(&a).max(1e-9)
         );
+        rates.push((scene.clone(), w, a));
     }
     println!("(seconds; FPS = free-path sampling incl. camera transmittance, thread-seconds / threads; lkp/fp = density lookups per free path)");
+    println!(
+        "\n{:<28} {:>9} {:>14} {:>14} {:>12}",
+        "scene", "sampler", "free paths/s", "lookups/s", "leaves/fp"
+    );
+    for (scene, w, a) in &rates {
+        for (name, r) in [("woodcock", w), ("adaptive", a)] {
+            let secs = (r.c.free_path_seconds + r.c.transmittance_seconds).max(1e-9);
+            println!(
+                "{:<28} {:>9} {:>14.0} {:>14.0} {:>12.2}",
+                scene
+                    .parent()
+                    .and_then(|p| p.file_name())
+                    .map_or(String::new(), |n| n.to_string_lossy().into()),
+                name,
+                r.c.free_paths as f64 / secs,
+                r.c.density_lookups as f64 / secs,
+                r.c.octree_steps as f64 / r.c.free_paths.max(1) as f64
+            );
+        }
+    }
+    println!("(per thread-second; leaves/fp = octree leaves entered per free path)");
     Ok(ExitCode::SUCCESS)
 }
 

@@ -148,6 +148,7 @@ impl FreePath for Adaptive<'_> {
     ) {
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
             tree.walk(ray, tmax, |leaf, a, b| {
+                c.octree_steps += 1;
                 let majorant = leaf.majorant;
                 if majorant <= 0.0 {
                     return true;
@@ -180,6 +181,7 @@ fn track_octree(
 ) -> Option<f32> {
     let mut hit = None;
     tree.walk(ray, tmax, |leaf, a, b| {
+        c.octree_steps += 1;
         let majorant = leaf.majorant;
         if majorant <= 0.0 {
             return true;

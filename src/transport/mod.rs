@@ -74,6 +74,8 @@ pub struct Counters {
     pub photons: u64,
     pub free_paths: u64,
     pub density_lookups: u64,
+    /// Octree leaves entered by adaptive tracking.
+    pub octree_steps: u64,
     pub camera_rays: u64,
     pub beam_evaluations: u64,
     pub photon_lookups: u64,
@@ -93,6 +95,7 @@ impl Counters {
         self.photons += o.photons;
         self.free_paths += o.free_paths;
         self.density_lookups += o.density_lookups;
+        self.octree_steps += o.octree_steps;
         self.camera_rays += o.camera_rays;
         self.beam_evaluations += o.beam_evaluations;
         self.photon_lookups += o.photon_lookups;
