@@ -105,7 +105,7 @@ impl Renderer {
             .any(|m| !matches!(m.material, crate::scene::Material::Lambert { .. }));
         if settings.tr_block == 0
             || settings.tr_block > MAX_TR_BLOCK
-            || settings.tr_block % settings.tr_samples != 0
+            || !settings.tr_block.is_multiple_of(settings.tr_samples)
         {
             return Err(Error::Other(format!(
                 "tr_block must be a multiple of tr_samples ({}) in 1..={MAX_TR_BLOCK}, got {}",

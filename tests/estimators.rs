@@ -7,7 +7,7 @@ use ppb::media::{Media, MediumDesc, Phase};
 use ppb::render::Renderer;
 use ppb::scene::{Camera, Light, Scene};
 use ppb::settings::{Radius, RenderSettings};
-use ppb::transport::freepath::Analytic;
+use ppb::transport::freepath::Woodcock;
 use ppb::transport::light::{LightSampler, LightTracer};
 
 /// Single-scattered radiance ("airlight") from a point light in a homogeneous medium: the
@@ -35,7 +35,7 @@ fn single_scattering_matches_quadrature() {
     let media = Media::new(vec![medium]);
     let geometry = Geometry::new(&scene).unwrap();
     let lights = LightSampler::new(&scene.lights, [Vec3::splat(-2.0), Vec3::splat(2.0)]);
-    let fp = Analytic { media: &media };
+    let fp = Woodcock { media: &media };
     let tracer = LightTracer {
         lights: &lights,
         geometry: &geometry,
@@ -133,6 +133,7 @@ fn small_scene() -> Scene {
             albedo: Vec3::splat(0.8),
             phase: Phase { g: 0.3 },
         }],
+        grid_media: vec![],
     }
 }
 

@@ -352,7 +352,10 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         },
         ..d
     };
-    if s.tr_block == 0 || s.tr_block > MAX_TR_BLOCK || s.tr_block % s.tr_samples.max(1) != 0 {
+    if s.tr_block == 0
+        || s.tr_block > MAX_TR_BLOCK
+        || !s.tr_block.is_multiple_of(s.tr_samples.max(1))
+    {
         return Err(ck.err(
             "render.tr_block",
             format!(
@@ -685,7 +688,7 @@ fn grid_transform(ck: &Check, field: &str, t: Option<&FileTransform>) -> Result<
     let tr = t.translate.unwrap_or([0.0; 3]);
     let rot = t.rotate_deg.unwrap_or([0.0; 3]);
     let scale = t.scale.unwrap_or(1.0);
-    if !tr.iter().chain(rot.iter()).all(|v| v.is_finite()) || !(scale.is_finite() && scale > 0.0) {
+    if !(tr.iter().chain(rot.iter()).all(|v| v.is_finite()) && scale.is_finite() && scale > 0.0) {
         return Err(ck.err(
             field,
             "expected finite translate/rotate_deg and a scale > 0".into(),

@@ -270,6 +270,6 @@ mod tests {
             }
         };
         let boxes = merge_slots(4, key);
-        assert_eq!(boxes, vec![(0, (1 * 4 + 1) * 4 + 3, 1), (63, 63, 2)]);
+        assert_eq!(boxes, vec![(0, (4 + 1) * 4 + 3, 1), (63, 63, 2)]);
     }
 }
