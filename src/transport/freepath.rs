@@ -110,8 +110,9 @@ impl FreePath for Woodcock<'_> {
 
 /// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
 /// majorant octree front to back, with delta tracking inside each leaf at the leaf's own
-/// majorant; empty leaves cost one step. Exponential steps are memoryless, so restarting
-/// at every leaf boundary samples exactly the same distribution as global Woodcock.
+/// majorant; empty leaves cost one step. Tentative collisions are a Poisson process of
+/// rate majorant(t), sampled by spending exponential optical depths across the leaves, so
+/// the free-path distribution is exactly global Woodcock's.
 /// Grids are tracked independently and the nearest collision wins (extinctions add).
 pub struct Adaptive<'a> {
     pub media: &'a Media,
@@ -147,6 +148,7 @@ impl FreePath for Adaptive<'_> {
         out: &mut RatioSteps,
     ) {
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
+            let mut tau = -(1.0 - rng.f32()).ln();
             tree.walk(ray, tmax, |leaf, a, b| {
                 c.octree_steps += 1;
                 let majorant = leaf.majorant;
@@ -155,16 +157,19 @@ impl FreePath for Adaptive<'_> {
                 }
                 let mut t = a;
                 loop {
-                    t -= (1.0 - rng.f32()).ln() / majorant;
-                    if t >= b {
+                    let room = (b - t) * majorant;
+                    if tau >= room {
+                        tau -= room;
                         return true;
                     }
+                    t += tau / majorant;
                     c.density_lookups += 1;
                     let f = 1.0 - g.sigma_t(ray.at(t)) / majorant;
                     out.push((t, f.max(0.0)));
                     if f <= 0.0 {
                         return false;
                     }
+                    tau = -(1.0 - rng.f32()).ln();
                 }
             });
         }
@@ -180,6 +185,9 @@ fn track_octree(
     c: &mut Counters,
 ) -> Option<f32> {
     let mut hit = None;
+    // Optical depth (in majorant units) left to the next tentative collision, carried
+    // across leaves: one logarithm per tentative collision, none per leaf crossed.
+    let mut tau = -(1.0 - rng.f32()).ln();
     tree.walk(ray, tmax, |leaf, a, b| {
         c.octree_steps += 1;
         let majorant = leaf.majorant;
@@ -188,15 +196,18 @@ fn track_octree(
         }
         let mut t = a;
         loop {
-            t -= (1.0 - rng.f32()).ln() / majorant;
-            if t >= b {
+            let room = (b - t) * majorant;
+            if tau >= room {
+                tau -= room;
                 return true;
             }
+            t += tau / majorant;
             c.density_lookups += 1;
             if rng.f32() * majorant < g.sigma_t(ray.at(t)) {
                 hit = Some(t);
                 return false;
             }
+            tau = -(1.0 - rng.f32()).ln();
         }
     });
     hit
