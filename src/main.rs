@@ -70,6 +70,13 @@ error at the PPB baseline's wall time (log-log interpolation)."
 }
 
 fn main() -> ExitCode {
+    // Like other command-line tools, end quietly when stdout is closed (`ppb info | head`)
+    // instead of failing a write.
+    #[cfg(unix)]
+    // SAFETY: restoring the default SIGPIPE action before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => app::render(args),
