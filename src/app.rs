@@ -51,7 +51,7 @@ pub struct RenderArgs {
     /// PNG preview exposure in stops (overrides [render].exposure).
     #[arg(long)]
     pub exposure: Option<f32>,
-    /// Grid free paths per camera segment per pass for the deep-shadow transmittance
+    /// Grid free paths per camera segment per pass for the random and stratified estimators
     /// (overrides [render].tr_samples; 1..=16, default 4).
     #[arg(long, value_name = "M")]
     pub tr_samples: Option<usize>,
