@@ -661,3 +661,23 @@ fn stage_renders_like_the_equivalent_toml_scene() {
         }
     }
 }
+
+#[test]
+fn usdz_package_imports() {
+    let top = scratch("usdz");
+    let dir = top.join("pkg");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("pkg.usdz");
+    let mut w = openusd::usdz::ArchiveWriter::create(&p).expect("create usdz");
+    let bytes = std::fs::read(data("glass_smoke.usdc")).unwrap();
+    w.add_layer("glass_smoke.usdc", &bytes).expect("add layer");
+    w.finish().expect("finish usdz");
+    // The packaged stage's ../smoke_plume.vdb resolves next to the package: absent here.
+    let e = err_text(&p);
+    assert!(e.contains("/World/Smoke/density"), "{e}");
+    std::fs::copy(data("../smoke_plume.vdb"), top.join("smoke_plume.vdb")).unwrap();
+    let imp = load_usd(&p).expect("usdz imports");
+    assert_eq!(imp.meshes.len(), 3);
+    assert_eq!(imp.lights.len(), 2);
+    assert!(imp.camera.is_some());
+}
