@@ -208,7 +208,7 @@ fn stage_renders_as_a_scene_file() {
     assert_eq!(f.scene.meshes.len(), 3);
     assert_eq!(f.scene.lights.len(), 2);
     assert_eq!(f.scene.grid_media.len(), 1);
-    assert!((f.scene.camera.vfov_deg - 30.219_151).abs() < 1e-4);
+    assert!((f.scene.camera.vfov_deg - 30.219_15).abs() < 1e-4);
     assert!(f.notes.iter().any(|n| n.contains("/World/Smoke")));
 }
 
@@ -226,12 +226,9 @@ fn toml_import_of_a_stage() {
 #[test]
 fn sidecar_overrides_settings() {
     let dir = scratch("sidecar");
-    for f in ["glass_smoke.usda"] {
-        std::fs::copy(data(f), dir.join(f)).unwrap();
-    }
-    // Without the VDB next to it the stage would fail, so drop the volume via a copy
-    // whose Volume points at the shipped file by absolute path.
-    let text = std::fs::read_to_string(dir.join("glass_smoke.usda")).unwrap();
+    // A copy of the stage whose Volume names the shipped VDB by absolute path, plus a
+    // sidecar with render settings.
+    let text = std::fs::read_to_string(data("glass_smoke.usda")).unwrap();
     let vdb = Path::new(DATA).join("../smoke_plume.vdb");
     let text = text.replace("../smoke_plume.vdb", &vdb.display().to_string());
     std::fs::write(dir.join("glass_smoke.usda"), text).unwrap();
@@ -680,4 +677,47 @@ fn usdz_package_imports() {
     assert_eq!(imp.meshes.len(), 3);
     assert_eq!(imp.lights.len(), 2);
     assert!(imp.camera.is_some());
+}
+
+#[test]
+fn invisible_and_guide_prims_are_skipped() {
+    let dir = scratch("hidden");
+    let body = format!(
+        r#"{HEADER}
+def Xform "Hidden"
+{{
+    token visibility = "invisible"
+    def Mesh "A"
+    {{
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(1, 0, 0), (0, 1, 0), (0, 0, 1)]
+    }}
+}}
+def Mesh "Guide"
+{{
+    uniform token purpose = "guide"
+    int[] faceVertexCounts = [3]
+    int[] faceVertexIndices = [0, 1, 2]
+    point3f[] points = [(1, 0, 0), (0, 1, 0), (0, 0, 1)]
+}}
+def Mesh "Shown"
+{{
+    int[] faceVertexCounts = [3]
+    int[] faceVertexIndices = [0, 1, 2]
+    point3f[] points = [(1, 0, 0), (0, 1, 0), (0, 0, 1)]
+}}
+"#
+    );
+    let imp = load_usd(&write_stage(&dir, "h.usda", &body)).expect("imports");
+    assert_eq!(imp.meshes.len(), 1);
+    assert_eq!(imp.meshes[0].name, "/Shown");
+    assert!(imp
+        .notes
+        .iter()
+        .any(|n| n.starts_with("ignored Mesh /Hidden/A")));
+    assert!(imp
+        .notes
+        .iter()
+        .any(|n| n.starts_with("ignored Mesh /Guide")));
 }

@@ -18,7 +18,12 @@
 //! - **Camera**: the first Camera prim; see [`camera`].
 //! - **Volume**: the `field:density` (else first) OpenVDBAsset; see [`volume`].
 //!
-//! Anything else with a prim type is listed in [`Imported::notes`] as ignored.
+//! Prims that are invisible (inherited `visibility`) or of `guide`/`proxy` purpose are
+//! skipped. Anything else with a prim type is listed in [`Imported::notes`] as ignored.
+//! Not read: time samples (default values only), DistantLight `angle` (the sun stays a
+//! delta light), the camera's horizontalAperture (the render settings set the aspect),
+//! textures feeding UsdPreviewSurface inputs (their fallbacks apply), and volume
+//! materials.
 use glam::{DAffine3, DMat3, DMat4, DQuat, DVec3, Vec3};
 use openusd::{gf, sdf, usd};
 use std::collections::HashMap;
@@ -132,6 +137,12 @@ impl<'a> Ctx<'a> {
             .map_err(|e| self.err(p, format!("{e:#}")))?
             .map(|t| t.to_string())
             .unwrap_or_default();
+        if !is_structural(&t) && self.hidden(p)? {
+            self.note(format!(
+                "ignored {t} {p}: invisible, or guide/proxy purpose"
+            ));
+            return Ok(());
+        }
         match t.as_str() {
             "Mesh" => self.mesh(p),
             "Sphere" => self.sphere(p),
@@ -145,6 +156,23 @@ impl<'a> Ctx<'a> {
                 Ok(())
             }
         }
+    }
+
+    /// Whether the prim is not rendered: `visibility = "invisible"` on it or an
+    /// ancestor (visibility inherits), or a `guide`/`proxy` purpose (viewport only).
+    fn hidden(&self, p: &sdf::Path) -> Result<bool> {
+        let purpose = self.token(p, "purpose")?;
+        if matches!(purpose.as_deref(), Some("guide" | "proxy")) {
+            return Ok(true);
+        }
+        let mut cur = Some(p.clone());
+        while let Some(q) = cur.filter(|q| !q.is_abs_root()) {
+            if self.token(&q, "visibility")?.as_deref() == Some("invisible") {
+                return Ok(true);
+            }
+            cur = q.parent();
+        }
+        Ok(false)
     }
 
     // ---- attribute access -------------------------------------------------------
@@ -384,7 +412,7 @@ impl<'a> Ctx<'a> {
         let counts = self.ints(p, "faceVertexCounts")?.unwrap_or_default();
         let indices = self.ints(p, "faceVertexIndices")?.unwrap_or_default();
         let mut tris = triangulate(&counts, &indices, points.len()).map_err(|m| self.err(p, m))?;
-        let normals = self.mesh_normals(p, &points, &counts, &indices)?;
+        let normals = self.mesh_normals(p, &points, &indices)?;
         let xf = self.world(p)?;
         let left = self.token(p, "orientation")?.as_deref() == Some("leftHanded");
         if left != (xf.determinant() < 0.0) {
@@ -397,13 +425,7 @@ impl<'a> Ctx<'a> {
     }
 
     /// Per-vertex normals in local space, or empty when none can be kept.
-    fn mesh_normals(
-        &self,
-        p: &sdf::Path,
-        points: &[DVec3],
-        counts: &[i64],
-        indices: &[i64],
-    ) -> Result<Vec<DVec3>> {
+    fn mesh_normals(&self, p: &sdf::Path, points: &[DVec3], indices: &[i64]) -> Result<Vec<DVec3>> {
         let (name, vals) = match self.points(p, "primvars:normals")? {
             Some(v) => ("primvars:normals", v),
             None => match self.points(p, "normals")? {
@@ -428,7 +450,6 @@ impl<'a> Ctx<'a> {
             .flatten()
             .and_then(|v| v.cast::<String>().ok())
             .unwrap_or_else(|| "vertex".into());
-        let _ = counts;
         Ok(match interp.as_str() {
             "vertex" | "varying" if vals.len() == points.len() => vals,
             "faceVarying" if vals.len() == indices.len() => {
