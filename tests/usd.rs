@@ -721,3 +721,49 @@ def Mesh "Shown"
         .iter()
         .any(|n| n.starts_with("ignored Mesh /Guide")));
 }
+
+#[test]
+fn missing_referenced_layer_is_reported() {
+    let dir = scratch("reference");
+    let body =
+        format!("{HEADER}\ndef Xform \"W\" (\n    references = @gone.usda@</X>\n)\n{{\n}}\n");
+    let e = err_text(&write_stage(&dir, "r.usda", &body));
+    assert!(e.contains("r.usda"), "{e}");
+    assert!(e.contains("gone.usda"), "{e}");
+}
+
+#[test]
+fn info_lists_imported_and_ignored_prims() {
+    let dir = scratch("info");
+    let body = format!(
+        r#"{HEADER}
+def Cube "Box"
+{{
+}}
+def DistantLight "Sun"
+{{
+}}
+def Camera "Cam"
+{{
+}}
+"#
+    );
+    let p = write_stage(&dir, "i.usda", &body);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ppb"))
+        .arg("info")
+        .arg(&p)
+        .output()
+        .expect("ppb runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text} {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("ignored Cube /Box: unsupported prim type"),
+        "{text}"
+    );
+    assert!(text.contains("imported DistantLight /Sun"), "{text}");
+    assert!(text.contains("imported Camera /Cam"), "{text}");
+}

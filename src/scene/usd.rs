@@ -67,9 +67,6 @@ pub fn load_usd(path: &Path) -> Result<Imported> {
 fn import(path: &Path, path_str: &str) -> Result<Imported> {
     let stage = usd::Stage::open(path_str)
         .map_err(|e| Error::format(path, format!("cannot open USD stage: {e:#}")))?;
-    if let Some(e) = stage.composition_errors().first() {
-        return Err(Error::format(path, format!("composition error: {e}")));
-    }
     let mut prims = Vec::new();
     stage
         .traverse(usd::PrimPredicate::DEFAULT, |p| prims.push(p.clone()))
@@ -86,6 +83,10 @@ fn import(path: &Path, path_str: &str) -> Result<Imported> {
     ctx.root = ctx.stage_root()?;
     for p in &prims {
         ctx.prim(p)?;
+    }
+    // Prims are indexed lazily, so arcs to missing layers surface only after the walk.
+    if let Some(e) = stage.composition_errors().first() {
+        return Err(Error::format(path, format!("composition error: {e}")));
     }
     Ok(ctx.out)
 }
