@@ -767,3 +767,50 @@ def Camera "Cam"
     assert!(text.contains("imported DistantLight /Sun"), "{text}");
     assert!(text.contains("imported Camera /Cam"), "{text}");
 }
+
+#[test]
+fn instanced_prims_are_imported_through_proxies() {
+    let dir = scratch("instances");
+    let body = format!(
+        r#"{HEADER}
+def Xform "Proto"
+{{
+    def Mesh "Tri"
+    {{
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(1, 0, 0), (0, 1, 0), (0, 0, 1)]
+    }}
+}}
+def Xform "A" (
+    instanceable = true
+    references = </Proto>
+)
+{{
+    double3 xformOp:translate = (5, 0, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+def Xform "B" (
+    instanceable = true
+    references = </Proto>
+)
+{{
+    double3 xformOp:translate = (0, 5, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"#
+    );
+    let imp = load_usd(&write_stage(&dir, "inst.usda", &body)).expect("imports");
+    let names: Vec<&str> = imp.meshes.iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(names, ["/Proto/Tri", "/A/Tri", "/B/Tri"], "{:?}", imp.notes);
+    assert!(close(
+        mesh(&imp, "/A/Tri").positions[0],
+        Vec3::new(6.0, 0.0, 0.0),
+        1e-6
+    ));
+    assert!(close(
+        mesh(&imp, "/B/Tri").positions[0],
+        Vec3::new(1.0, 5.0, 0.0),
+        1e-6
+    ));
+}

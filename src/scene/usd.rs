@@ -67,9 +67,12 @@ pub fn load_usd(path: &Path) -> Result<Imported> {
 fn import(path: &Path, path_str: &str) -> Result<Imported> {
     let stage = usd::Stage::open(path_str)
         .map_err(|e| Error::format(path, format!("cannot open USD stage: {e:#}")))?;
+    // Instance proxies are walked too, so instanced geometry is not silently lost.
     let mut prims = Vec::new();
     stage
-        .traverse(usd::PrimPredicate::DEFAULT, |p| prims.push(p.clone()))
+        .traverse(usd::PrimPredicate::DEFAULT_PROXIES, |p| {
+            prims.push(p.clone())
+        })
         .map_err(|e| Error::format(path, format!("cannot traverse the stage: {e:#}")))?;
     let mut ctx = Ctx {
         stage: &stage,
@@ -705,7 +708,9 @@ impl<'a> Ctx<'a> {
     /// The grid's own index-to-world map is followed by the Volume prim's world
     /// transform. Medium parameters come from custom attributes on the Volume prim,
     /// `ppb:densityScale` (1), `ppb:albedo` (0.9 grey) and `ppb:g` (0); a volume
-    /// material is not read. A missing or unreadable .vdb is an error naming the prim.
+    /// material is not read; extra media can come from a `<stem>.ppb.toml` sidecar. Grid
+    /// values times `ppb:densityScale` are extinction in 1/m whatever metersPerUnit is.
+    /// A missing or unreadable .vdb is an error naming the prim.
     fn volume(&mut self, p: &sdf::Path) -> Result<()> {
         let Some((rel, field)) = self.volume_field(p)? else {
             self.note(format!("ignored Volume {p}: no field:* relationship"));
