@@ -862,7 +862,7 @@ fn info_grid_file(path: &Path) -> Result<ExitCode> {
 }
 
 pub fn info(scene: &Path) -> Result<ExitCode> {
-    if scene.extension().is_some_and(|e| e != "toml") {
+    if scene.extension().is_some_and(|e| e != "toml") && !scene_toml::is_usd(scene) {
         return info_grid_file(scene);
     }
     let file = scene_toml::load(scene)?;
@@ -908,6 +908,9 @@ pub fn info(scene: &Path) -> Result<ExitCode> {
     }
     for p in &file.sources[1..] {
         println!("source     {}", p.display());
+    }
+    for n in &file.notes {
+        println!("usd        {n}");
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -1,9 +1,10 @@
-//! Scene import: every source (TOML scene file, OBJ, glTF) ends up as one [`Scene`].
+//! Scene import: every source (TOML scene file, OBJ, glTF, USD) ends up as one [`Scene`].
 //!
 //! Units: metres, radiometric (W, W/sr, W/m^2, W/(m^2 sr)); right-handed, +Y up.
 pub mod gltf;
 pub mod obj;
 pub mod toml;
+pub mod usd;
 
 use glam::Vec3;
 
@@ -73,13 +74,17 @@ pub enum Light {
     },
 }
 
-/// What one imported file (OBJ, glTF) contributes; mesh materials index `materials`.
+/// What one imported file (OBJ, glTF, USD) contributes; mesh materials index `materials`.
 #[derive(Clone, Debug, Default)]
 pub struct Imported {
     pub materials: Vec<NamedMaterial>,
     pub meshes: Vec<Mesh>,
     pub lights: Vec<Light>,
     pub camera: Option<Camera>,
+    /// Grid media placed by the file (USD Volume prims).
+    pub grid_media: Vec<GridMedium>,
+    /// One line per prim imported or ignored, with its path, for `ppb info`.
+    pub notes: Vec<String>,
 }
 
 /// Everything the renderer needs, in world space.

@@ -173,6 +173,8 @@ pub struct SceneFile {
     pub scene: Scene,
     /// Every file the scene read (the scene file first), for watching and cache keys.
     pub sources: Vec<PathBuf>,
+    /// What imported files (USD stages) took and left out, one line per prim.
+    pub notes: Vec<String>,
 }
 
 /// Checks of one value, each returning the field's error.
@@ -227,21 +229,64 @@ fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
 }
 
+/// Loads a scene file; a USD stage (.usd, .usda, .usdc, .usdz) is loaded as a scene of
+/// its own, see [`load_usd_scene`].
 pub fn load(path: &Path) -> Result<SceneFile> {
+    if is_usd(path) {
+        return load_usd_scene(path);
+    }
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     parse(path, &text)
 }
 
+fn extension_of(p: &Path) -> String {
+    p.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
+/// Whether the path names a USD stage by its extension.
+pub fn is_usd(p: &Path) -> bool {
+    matches!(extension_of(p).as_str(), "usd" | "usda" | "usdc" | "usdz")
+}
+
+/// `ppb render shot.usda`: the stage becomes the one `[[import]]` of a scene with
+/// default render settings and the stage's camera, unless a sidecar `shot.ppb.toml`
+/// sits next to it; then the sidecar is read as a normal scene file (settings, extra
+/// lights, media, a camera that overrides the stage's) and the stage is added to its
+/// imports.
+pub fn load_usd_scene(path: &Path) -> Result<SceneFile> {
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    let sidecar = path.with_file_name(format!("{stem}.ppb.toml"));
+    let mut file = if sidecar.is_file() {
+        let text = std::fs::read_to_string(&sidecar).map_err(|e| Error::io(&sidecar, e))?;
+        parse_file(&sidecar, &text)?
+    } else {
+        FileScene::default()
+    };
+    let name = path.file_name().unwrap_or_default();
+    file.import.push(FileImport { path: name.into() });
+    build(path, file)
+}
+
 /// Parses scene text as if it were the file at `path` (its folder resolves relative paths).
 pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
-    let file: FileScene = ::toml::from_str(text).map_err(|e| {
+    build(path, parse_file(path, text)?)
+}
+
+fn parse_file(path: &Path, text: &str) -> Result<FileScene> {
+    ::toml::from_str(text).map_err(|e| {
         let line = e.span().map(|s| line_of(text, s.start));
         let msg = e.message().replace('\n', " ");
         match line {
             Some(l) => Error::format(path, format!("line {l}: {msg}")),
             None => Error::format(path, msg),
         }
-    })?;
+    })
+}
+
+/// Assembles a parsed scene file; `path` is the file it came from.
+fn build(path: &Path, file: FileScene) -> Result<SceneFile> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let ck = Check { path };
     let settings = render_settings(&ck, &file.render)?;
@@ -251,16 +296,19 @@ pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
         scene.materials.push(material(&ck, i, m)?);
     }
     let mut camera = None;
+    let mut notes = Vec::new();
     for (i, imp) in file.import.iter().enumerate() {
         let p = dir.join(&imp.path);
-        let imported = load_asset(&p, &format!("import[{i}].path"), path)?;
+        let mut imported = load_asset(&p, &format!("import[{i}].path"), path)?;
+        notes.append(&mut imported.notes);
         sources.push(p);
         camera = camera.or(imported.camera);
         merge(&mut scene, imported, None);
     }
     for (i, m) in file.mesh.iter().enumerate() {
         let p = dir.join(&m.path);
-        let imported = load_asset(&p, &format!("mesh[{i}].path"), path)?;
+        let mut imported = load_asset(&p, &format!("mesh[{i}].path"), path)?;
+        notes.append(&mut imported.notes);
         sources.push(p);
         let over = match &m.material {
             Some(name) => Some(find_material(&ck, &scene, i, name)?),
@@ -287,7 +335,7 @@ pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
             return Err(Error::field(
                 path,
                 "camera",
-                "no [camera] table and no camera in an imported glTF",
+                "no [camera] table and no camera in an imported glTF or USD stage",
             ))
         }
     };
@@ -299,6 +347,7 @@ pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
         settings,
         scene,
         sources,
+        notes,
     })
 }
 
@@ -448,22 +497,29 @@ fn load_asset(p: &Path, field: &str, scene_path: &Path) -> Result<Imported> {
     let imported = match ext.as_str() {
         "obj" => super::obj::load_obj(p)?,
         "gltf" | "glb" => super::gltf::load_gltf(p)?,
+        "usd" | "usda" | "usdc" | "usdz" => super::usd::load_usd(p)?,
         _ => {
             return Err(Error::field(
                 scene_path,
                 field,
-                format!("{}: expected a .obj, .gltf or .glb file", p.display()),
+                format!(
+                    "{}: expected a .obj, .gltf, .glb, .usd, .usda, .usdc or .usdz file",
+                    p.display()
+                ),
             ))
         }
     };
-    if imported.meshes.iter().all(|m| m.triangles.is_empty()) && imported.lights.is_empty() {
+    if imported.meshes.iter().all(|m| m.triangles.is_empty())
+        && imported.lights.is_empty()
+        && imported.grid_media.is_empty()
+    {
         return Err(Error::format(p, "the file holds no triangles"));
     }
     Ok(imported)
 }
 
-/// Appends an imported file's materials, meshes and lights to the scene; `over` replaces
-/// every mesh's material.
+/// Appends an imported file's materials, meshes, lights and grid media to the scene;
+/// `over` replaces every mesh's material.
 fn merge(scene: &mut Scene, imported: Imported, over: Option<usize>) {
     let base = scene.materials.len();
     if over.is_none() {
@@ -474,6 +530,7 @@ fn merge(scene: &mut Scene, imported: Imported, over: Option<usize>) {
         scene.meshes.push(m);
     }
     scene.lights.extend(imported.lights);
+    scene.grid_media.extend(imported.grid_media);
 }
 
 fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
