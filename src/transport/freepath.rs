@@ -5,7 +5,7 @@
 //! parts' free paths.
 use crate::geometry::Ray;
 use crate::majorant::Octree;
-use crate::media::{GridMedium, Media};
+use crate::media::Media;
 use crate::sampling::Rng;
 use crate::transport::transmittance::RatioSteps;
 use crate::transport::Counters;
@@ -50,6 +50,66 @@ pub struct Woodcock<'a> {
     pub media: &'a Media,
 }
 
+/// What a tracking visit decides at a tentative collision.
+type Visit<'a> = &'a mut dyn FnMut(f32, f32, &mut Rng) -> bool;
+
+/// Tentative collisions of rate `majorant` on [t0, t1]; `visit(t, majorant, rng)` returns
+/// false to stop. Returns false if stopped.
+fn track_constant(
+    t0: f32,
+    t1: f32,
+    majorant: f32,
+    tau: &mut f32,
+    rng: &mut Rng,
+    visit: Visit,
+) -> bool {
+    let mut t = t0;
+    loop {
+        let room = (t1 - t) * majorant;
+        if *tau >= room {
+            *tau -= room;
+            return true;
+        }
+        t += *tau / majorant;
+        if !visit(t, majorant, rng) {
+            return false;
+        }
+        *tau = -(1.0 - rng.f32()).ln();
+    }
+}
+
+/// Tentative collisions along the ray at the rate of the octree leaves' majorants. The
+/// optical depth left to the next one is carried across leaves: one logarithm per
+/// tentative collision, none per leaf crossed.
+fn track_leaves(
+    tree: &Octree,
+    ray: &Ray,
+    tmax: f32,
+    rng: &mut Rng,
+    c: &mut Counters,
+    visit: Visit,
+) {
+    let mut tau = -(1.0 - rng.f32()).ln();
+    tree.walk(ray, tmax, |leaf, a, b| {
+        c.octree_steps += 1;
+        leaf.majorant <= 0.0 || track_constant(a, b, leaf.majorant, &mut tau, rng, visit)
+    });
+}
+
+impl Woodcock<'_> {
+    /// Tentative collisions at the global majorant over the grids' span of the ray.
+    fn track(&self, ray: &Ray, tmax: f32, rng: &mut Rng, visit: Visit) {
+        let Some((t0, t1)) = self.media.grid_interval(ray, tmax) else {
+            return;
+        };
+        let majorant = self.media.grid_majorant();
+        if majorant > 0.0 {
+            let mut tau = -(1.0 - rng.f32()).ln();
+            track_constant(t0, t1, majorant, &mut tau, rng, visit);
+        }
+    }
+}
+
 impl FreePath for Woodcock<'_> {
     fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
         c.free_paths += 1;
@@ -59,22 +119,16 @@ impl FreePath for Woodcock<'_> {
     }
 
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
-        let (t0, t1) = self.media.grid_interval(ray, tmax)?;
-        let majorant = self.media.grid_majorant();
-        if majorant <= 0.0 {
-            return None;
-        }
-        let mut t = t0;
-        loop {
-            t -= (1.0 - rng.f32()).ln() / majorant;
-            if t >= t1 {
-                return None;
-            }
+        let mut hit = None;
+        self.track(ray, tmax, rng, &mut |t, majorant, rng| {
             c.density_lookups += 1;
-            if rng.f32() * majorant < self.media.grid_sigma_t(ray.at(t)) {
-                return Some(t);
+            let real = rng.f32() * majorant < self.media.grid_sigma_t(ray.at(t));
+            if real {
+                hit = Some(t);
             }
-        }
+            !real
+        });
+        hit
     }
 
     fn ratio_steps(
@@ -85,35 +139,20 @@ impl FreePath for Woodcock<'_> {
         c: &mut Counters,
         out: &mut RatioSteps,
     ) {
-        let Some((t0, t1)) = self.media.grid_interval(ray, tmax) else {
-            return;
-        };
-        let majorant = self.media.grid_majorant();
-        if majorant <= 0.0 {
-            return;
-        }
-        let mut t = t0;
-        loop {
-            t -= (1.0 - rng.f32()).ln() / majorant;
-            if t >= t1 {
-                return;
-            }
+        self.track(ray, tmax, rng, &mut |t, majorant, _| {
             c.density_lookups += 1;
-            let f = 1.0 - self.media.grid_sigma_t(ray.at(t)) / majorant;
-            out.push((t, f.max(0.0)));
-            if f <= 0.0 {
-                return;
-            }
-        }
+            let f = (1.0 - self.media.grid_sigma_t(ray.at(t)) / majorant).max(0.0);
+            out.push((t, f));
+            f > 0.0
+        });
     }
 }
 
 /// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
 /// majorant octree front to back, with delta tracking inside each leaf at the leaf's own
 /// majorant; empty leaves cost one step. Tentative collisions are a Poisson process of
-/// rate majorant(t), sampled by spending exponential optical depths across the leaves, so
-/// the free-path distribution is exactly global Woodcock's.
-/// Grids are tracked independently and the nearest collision wins (extinctions add).
+/// rate majorant(t), so the free-path distribution is exactly global Woodcock's. Grids are
+/// tracked independently and the nearest collision wins (extinctions add).
 pub struct Adaptive<'a> {
     pub media: &'a Media,
     /// One octree per entry of `media.grids`.
@@ -132,9 +171,16 @@ impl FreePath for Adaptive<'_> {
         let mut best: Option<f32> = None;
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
             let limit = best.unwrap_or(tmax);
-            if let Some(t) = track_octree(g, tree, ray, limit, rng, c) {
-                best = Some(t);
-            }
+            let mut lookups = 0;
+            track_leaves(tree, ray, limit, rng, c, &mut |t, majorant, rng| {
+                lookups += 1;
+                let real = rng.f32() * majorant < g.sigma_t(ray.at(t));
+                if real {
+                    best = Some(t);
+                }
+                !real
+            });
+            c.density_lookups += lookups;
         }
         best
     }
@@ -148,69 +194,16 @@ impl FreePath for Adaptive<'_> {
         out: &mut RatioSteps,
     ) {
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
-            let mut tau = -(1.0 - rng.f32()).ln();
-            tree.walk(ray, tmax, |leaf, a, b| {
-                c.octree_steps += 1;
-                let majorant = leaf.majorant;
-                if majorant <= 0.0 {
-                    return true;
-                }
-                let mut t = a;
-                loop {
-                    let room = (b - t) * majorant;
-                    if tau >= room {
-                        tau -= room;
-                        return true;
-                    }
-                    t += tau / majorant;
-                    c.density_lookups += 1;
-                    let f = 1.0 - g.sigma_t(ray.at(t)) / majorant;
-                    out.push((t, f.max(0.0)));
-                    if f <= 0.0 {
-                        return false;
-                    }
-                    tau = -(1.0 - rng.f32()).ln();
-                }
+            let mut lookups = 0;
+            track_leaves(tree, ray, tmax, rng, c, &mut |t, majorant, _| {
+                lookups += 1;
+                let f = (1.0 - g.sigma_t(ray.at(t)) / majorant).max(0.0);
+                out.push((t, f));
+                f > 0.0
             });
+            c.density_lookups += lookups;
         }
     }
-}
-
-fn track_octree(
-    g: &GridMedium,
-    tree: &Octree,
-    ray: &Ray,
-    tmax: f32,
-    rng: &mut Rng,
-    c: &mut Counters,
-) -> Option<f32> {
-    let mut hit = None;
-    // Optical depth (in majorant units) left to the next tentative collision, carried
-    // across leaves: one logarithm per tentative collision, none per leaf crossed.
-    let mut tau = -(1.0 - rng.f32()).ln();
-    tree.walk(ray, tmax, |leaf, a, b| {
-        c.octree_steps += 1;
-        let majorant = leaf.majorant;
-        if majorant <= 0.0 {
-            return true;
-        }
-        let mut t = a;
-        loop {
-            let room = (b - t) * majorant;
-            if tau >= room {
-                tau -= room;
-                return true;
-            }
-            t += tau / majorant;
-            c.density_lookups += 1;
-            if rng.f32() * majorant < g.sigma_t(ray.at(t)) {
-                hit = Some(t);
-                return false;
-            }
-            tau = -(1.0 - rng.f32()).ln();
-        }
-    });
-    hit
 }
 
 /// Which free-path sampler light paths and camera transmittance use.
