@@ -11,8 +11,16 @@ use crate::transport::transmittance::RatioSteps;
 use crate::transport::Counters;
 
 pub trait FreePath: Sync {
-    /// Distance to the next collision in (0, tmax), or None if the ray gets through.
-    fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32>;
+    /// The media this sampler tracks.
+    fn media(&self) -> &Media;
+    /// Distance to the next collision in (0, tmax), or None if the ray gets through:
+    /// the nearer of the homogeneous media's exact free path and the grids'.
+    fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
+        c.free_paths += 1;
+        let t_hom = sample_homogeneous(self.media(), ray, tmax, rng);
+        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
+            .or(t_hom)
+    }
     /// A free path through the grids alone (camera transmittance estimates use these;
     /// the homogeneous part of the transmittance is analytic).
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32>;
@@ -111,11 +119,8 @@ impl Woodcock<'_> {
 }
 
 impl FreePath for Woodcock<'_> {
-    fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
-        c.free_paths += 1;
-        let t_hom = sample_homogeneous(self.media, ray, tmax, rng);
-        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
-            .or(t_hom)
+    fn media(&self) -> &Media {
+        self.media
     }
 
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
@@ -160,11 +165,8 @@ pub struct Adaptive<'a> {
 }
 
 impl FreePath for Adaptive<'_> {
-    fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
-        c.free_paths += 1;
-        let t_hom = sample_homogeneous(self.media, ray, tmax, rng);
-        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
-            .or(t_hom)
+    fn media(&self) -> &Media {
+        self.media
     }
 
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
