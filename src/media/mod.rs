@@ -1,5 +1,6 @@
 //! Participating media: what the scene file describes ([`MediumDesc`]) and the combined
 //! extinction field the transport code samples ([`Media`]).
+pub mod blosc;
 pub mod grid;
 pub mod heterogeneous;
 pub mod homogeneous;

@@ -10,7 +10,6 @@
 //! The whole file is read into memory and every count and size is checked against the
 //! bytes left before it is used: a truncated or corrupt file is an `Error::format` naming
 //! what broke, never a panic or an allocation out of proportion to the file.
-mod blosc;
 mod bytes;
 mod transform;
 mod tree;

@@ -2,8 +2,8 @@
 //! metadata byte that says how inactive values can be rebuilt, optional inactive values and
 //! a selection mask, then the values (all of them, or only the active ones under active-mask
 //! compression) as one raw, zlib or Blosc chunk, in f32 or IEEE half.
-use super::blosc;
 use super::bytes::{bit, count_ones, Parse, Reader};
+use crate::media::blosc;
 use std::io::Read;
 
 pub const COMPRESS_ZIP: u32 = 0x1;

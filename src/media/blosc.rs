@@ -1,12 +1,15 @@
-//! Decoder for the Blosc 1 frame OpenVDB writes through `blosc_compress_ctx`.
+//! Decoder for one Blosc 1 frame, shared by the OpenVDB reader (`blosc_compress_ctx`
+//! buffers) and the NanoVDB loader (one frame per chunk).
 //!
 //! Frame: a 16-byte header (format version, codec version, flags, type size, raw size,
 //! block size, frame size), then one u32 start offset per block, then the blocks. A block
 //! is split into `typesize` streams when the writer could split it; each stream is a u32
 //! length and the codec's bytes (or the raw bytes when the length equals the stream size).
 //! With the shuffle flag the decoded block is byte-transposed by `typesize`.
-use super::bytes::Parse;
 use std::io::Read;
+
+/// Decoder result: an error message without the file name (the caller adds it).
+pub type Parse<T> = std::result::Result<T, String>;
 
 const HEADER: usize = 16;
 const FLAG_SHUFFLE: u8 = 0x01;
@@ -54,13 +57,13 @@ fn header(src: &[u8], expected: usize) -> Parse<Header> {
     }
     if cbytes != src.len() {
         return Err(format!(
-            "blosc frame says it is {cbytes} bytes, the chunk is {}",
+            "blosc frame says it is {cbytes} bytes (cbytes): it would run past the end of the {}-byte chunk",
             src.len()
         ));
     }
     if h.nbytes > 0 && (h.typesize == 0 || h.blocksize == 0 || h.blocksize > h.nbytes) {
         return Err(format!(
-            "blosc frame with type size {} and block size {} for {} bytes",
+            "blosc frame with typesize {} and block size {} for {} bytes",
             h.typesize, h.blocksize, h.nbytes
         ));
     }
@@ -92,6 +95,12 @@ pub fn decompress(src: &[u8], expected: usize) -> Parse<Vec<u8>> {
     let mut tmp = vec![0u8; h.blocksize.min(h.nbytes)];
     for (j, dest) in out.chunks_mut(h.blocksize).enumerate() {
         let start = u32_at(src, HEADER + 4 * j, "block offset")?;
+        if start > i32::MAX as usize {
+            return Err(format!(
+                "negative block start {} (block {j})",
+                start as u32 as i32
+            ));
+        }
         let leftover = dest.len() < h.blocksize;
         let shuffled = h.flags & FLAG_SHUFFLE != 0 && h.typesize > 1;
         let buf = if shuffled {
@@ -132,10 +141,9 @@ fn decode_block(
     for part in dest.chunks_mut(neblock) {
         let cbytes = u32_at(src, at, "stream length")?;
         at += 4;
-        let stream = src
-            .get(at..)
-            .and_then(|s| s.get(..cbytes))
-            .ok_or_else(|| format!("blosc stream of {cbytes} bytes runs past the frame"))?;
+        let stream = src.get(at..).and_then(|s| s.get(..cbytes)).ok_or_else(|| {
+            format!("blosc stream of {cbytes} bytes would run past the end of the frame")
+        })?;
         at += cbytes;
         if cbytes == part.len() {
             part.copy_from_slice(stream);
