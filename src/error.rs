@@ -19,6 +19,9 @@ pub enum Error {
     /// A file that could not be parsed at all (syntax, truncated, wrong format).
     #[error("{}: {msg}", path.display())]
     Format { path: PathBuf, msg: String },
+    /// No adapter, a device that could not be opened or was lost, a GPU buffer too large.
+    #[error("GPU: {0}")]
+    Gpu(String),
     #[error("{0}")]
     Other(String),
 }

@@ -47,4 +47,21 @@ impl Film {
             })
             .collect()
     }
+
+    /// The current estimate with `extra` (per-pixel sums over the same passes, e.g. the GPU's
+    /// beam accumulator) added.
+    pub fn image_plus(&self, extra: &[[f32; 4]]) -> Vec<[f32; 3]> {
+        let inv = 1.0 / self.passes.max(1) as f64;
+        self.sum
+            .iter()
+            .zip(extra)
+            .map(|(s, e)| {
+                [
+                    ((s[0] + e[0] as f64) * inv) as f32,
+                    ((s[1] + e[1] as f64) * inv) as f32,
+                    ((s[2] + e[2] as f64) * inv) as f32,
+                ]
+            })
+            .collect()
+    }
 }

@@ -62,6 +62,13 @@ rel_l1 against the reference at each pass count with the wall time, then every c
 error at the PPB baseline's wall time (log-log interpolation)."
     )]
     BenchTr(app::BenchTrArgs),
+    /// GPU vs CPU beam estimate: time per pass, their ratio, crossings per second.
+    #[command(
+        long_about = "Traces a few passes of each scene once and runs the beam estimate of each \
+pass on the CPU and on the GPU, printing milliseconds per pass on each, their ratio, beam-segment \
+crossings per pass and per second, and the largest relative difference between the two images."
+    )]
+    BenchGpu(app::BenchGpuArgs),
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -84,6 +91,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => app::bench(args),
         Command::Build(args) => app::build(args),
         Command::BenchTr(args) => app::bench_tr(args),
+        Command::BenchGpu(args) => app::bench_gpu(args),
         Command::Info { scene } => app::info(&scene),
     };
     match result {

@@ -1,20 +1,22 @@
-//! One progressive pass = light tracing (beams + photons) then a camera pass that
-//! estimates radiance from them; [`Renderer`] holds what stays fixed across passes.
+//! One progressive pass = light tracing (beams + photons), camera paths (with the photon
+//! estimate and the camera transmittance), then the beam estimate along the camera
+//! segments, on the CPU ([`Renderer::pass`]) or on the GPU (`gpu::beams`) while the next
+//! pass is traced. [`Renderer`] holds what stays fixed across passes.
 use glam::Vec3;
 use std::time::Instant;
 
 use crate::error::{Error, Result};
-use crate::estimate::{beams::BeamMap, photons::PhotonMap, radius};
+use crate::estimate::{beams::BeamMap, cpu, photons::PhotonMap, radius};
 use crate::geometry::Geometry;
 use crate::majorant::Octree;
 use crate::media::Media;
 use crate::scene::{Rgb, Scene};
 use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
-use crate::transport::camera::{CameraTracer, Pinhole};
+use crate::transport::camera::{CameraPass, CameraTracer, Pinhole};
 use crate::transport::freepath::{Adaptive, FreePath, Mode, Woodcock};
 use crate::transport::light::{LightSampler, LightTracer};
 use crate::transport::transmittance::{StratStore, TrMode, MAX_TR_BLOCK};
-use crate::transport::Counters;
+use crate::transport::{Beam, Counters};
 use std::sync::Mutex;
 
 pub struct Renderer {
@@ -40,15 +42,35 @@ pub struct Renderer {
 pub struct Timings {
     pub light_tracing: f64,
     pub build_maps: f64,
-    pub camera_and_estimate: f64,
+    pub camera_paths: f64,
+    /// The beam estimate on the CPU (0 when the GPU does it).
+    pub beam_estimate: f64,
 }
 
 impl Timings {
     pub fn add(&mut self, o: &Timings) {
         self.light_tracing += o.light_tracing;
         self.build_maps += o.build_maps;
-        self.camera_and_estimate += o.camera_and_estimate;
+        self.camera_paths += o.camera_paths;
+        self.beam_estimate += o.beam_estimate;
     }
+
+    pub fn total(&self) -> f64 {
+        self.light_tracing + self.build_maps + self.camera_paths + self.beam_estimate
+    }
+}
+
+/// A pass traced up to the beam estimate: everything the estimate reads.
+pub struct TracedPass {
+    /// 1-based pass number.
+    pub index: u32,
+    pub camera: CameraPass,
+    pub beams: Vec<Beam>,
+    /// The beam BVH (built when the camera can reach a specular surface, or on request).
+    pub beam_map: Option<BeamMap>,
+    pub beam_radius: f32,
+    pub counters: Counters,
+    pub timings: Timings,
 }
 
 pub struct PassResult {
@@ -130,8 +152,14 @@ impl Renderer {
         })
     }
 
-    /// Renders pass `i` (1-based).
+    /// Renders pass `i` (1-based) on the CPU.
     pub fn pass(&self, i: u32) -> PassResult {
+        self.estimate_cpu(self.trace(i, false))
+    }
+
+    /// Light tracing and camera paths of pass `i`; `beam_map` forces the beam BVH (the GPU
+    /// estimate walks it for every segment).
+    pub fn trace(&self, i: u32, beam_map: bool) -> TracedPass {
         let s = &self.settings;
         let woodcock = Woodcock { media: &self.media };
         let adaptive = Adaptive {
@@ -152,8 +180,7 @@ impl Renderer {
         let light = lt.trace_pass(s.seed, i, s.beams_per_pass);
         let t1 = Instant::now();
         let beam_r = radius::beam_radius(self.beam_r1, i, s.alpha);
-        let beam_map = self
-            .has_specular
+        let beam_map = ((beam_map || self.has_specular) && !self.media.is_empty())
             .then(|| BeamMap::build(&light.beams, beam_r));
         let photons = PhotonMap::build(
             &light.photons,
@@ -165,27 +192,63 @@ impl Renderer {
             geometry: &self.geometry,
             media: &self.media,
             free_path,
-            beams: &light.beams,
-            beam_map: beam_map.as_ref(),
-            beam_radius: beam_r,
             tr_samples: s.tr_samples,
             tr_mode: s.tr_mode,
             photons: &photons,
         };
         let mut strat = self.strat.lock().unwrap_or_else(|e| e.into_inner());
-        let (image, cam_counters) = ct.trace_pass(s.seed, i, strat.as_mut());
+        let camera = ct.trace_pass(s.seed, i, strat.as_mut());
         let t3 = Instant::now();
         let mut counters = light.counters;
-        counters.add(&cam_counters);
-        PassResult {
-            image,
+        counters.add(&camera.counters);
+        TracedPass {
+            index: i,
+            camera,
+            beams: light.beams,
+            beam_map,
+            beam_radius: beam_r,
             counters,
             timings: Timings {
                 light_tracing: (t1 - t0).as_secs_f64(),
                 build_maps: (t2 - t1).as_secs_f64(),
-                camera_and_estimate: (t3 - t2).as_secs_f64(),
+                camera_paths: (t3 - t2).as_secs_f64(),
+                beam_estimate: 0.0,
             },
         }
+    }
+
+    /// Finishes a traced pass with the beam estimate on the CPU.
+    pub fn estimate_cpu(&self, t: TracedPass) -> PassResult {
+        let start = Instant::now();
+        let (beam_img, evals) = cpu::beam_image(
+            &self.camera,
+            &self.media,
+            &t.camera,
+            &t.beams,
+            t.beam_map.as_ref(),
+            t.beam_radius,
+        );
+        let mut image = t.camera.image;
+        for (a, b) in image.iter_mut().zip(beam_img) {
+            *a += b;
+        }
+        let mut counters = t.counters;
+        counters.beam_evaluations += evals;
+        let mut timings = t.timings;
+        timings.beam_estimate = start.elapsed().as_secs_f64();
+        PassResult {
+            image,
+            counters,
+            timings,
+        }
+    }
+
+    pub fn camera(&self) -> &Pinhole {
+        &self.camera
+    }
+
+    pub fn media(&self) -> &Media {
+        &self.media
     }
 
     pub fn triangle_count(&self) -> usize {

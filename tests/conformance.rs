@@ -7,8 +7,9 @@
 use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
-use ppb::film::Film;
+use ppb::gpu::{DeviceKind, Gpu};
 use ppb::output::{read_exr, Image};
+use ppb::progressive::Progressive;
 use ppb::render::Renderer;
 use ppb::scene::toml::load;
 use ppb::settings::Radius;
@@ -20,11 +21,19 @@ fn data(p: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
 
-fn render(scene: &str, seed: u64, passes: u32, paths: usize) -> Image {
-    render_with(scene, seed, passes, paths, Mode::Adaptive)
+fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) -> Image {
+    render_on(scene, seed, passes, paths, mode, None)
 }
 
-fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) -> Image {
+/// Renders with the beam estimate on `gpu` (None: the CPU).
+fn render_on(
+    scene: &str,
+    seed: u64,
+    passes: u32,
+    paths: usize,
+    mode: Mode,
+    gpu: Option<Gpu>,
+) -> Image {
     let file = load(&data(scene)).expect("scene loads");
     // The radii the full-resolution render would use: blocks of the reference are
     // compared, so the kernel must not blur more than the full-resolution render does.
@@ -37,16 +46,26 @@ fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) ->
     s.height /= BLOCK as u32;
     s.seed = seed;
     s.beams_per_pass = paths;
-    let (w, h) = (s.width, s.height);
     let r = Renderer::new(&file.scene, s).expect("renderer");
-    let mut film = Film::new(w, h);
+    let mut acc = Progressive::new(&r, gpu).expect("estimator");
     for i in 1..=passes {
-        film.add_pass(&r.pass(i).image);
+        acc.pass(&r, i).expect("pass");
     }
-    Image {
-        width: w as usize,
-        height: h as usize,
-        pixels: film.image(),
+    acc.image().expect("image")
+}
+
+/// An adapter (software ones included), or None after printing why the test skips;
+/// PPB_REQUIRE_GPU=1 (CI) makes a missing adapter a failure.
+fn gpu_or_skip(test: &str) -> Option<Gpu> {
+    match ppb::gpu::open(DeviceKind::Gpu) {
+        Ok(g) => g,
+        Err(e) if std::env::var("PPB_REQUIRE_GPU").as_deref() == Ok("1") => {
+            panic!("{test}: PPB_REQUIRE_GPU=1 but {e}")
+        }
+        Err(e) => {
+            eprintln!("{test}: skipped: {e}");
+            None
+        }
     }
 }
 
@@ -76,7 +95,30 @@ struct Outcome {
     mean_ratio: f64,
 }
 
+/// Where the beam estimate of a conformance render runs.
+#[derive(Clone, Copy, PartialEq)]
+enum Device {
+    Cpu,
+    Gpu,
+}
+
 fn check(scene: &str, reference: &str, mask: Option<&str>, passes: u32, paths: usize) -> Outcome {
+    check_on(scene, reference, mask, passes, paths, Device::Cpu).expect("CPU render")
+}
+
+/// None when the GPU is asked for and there is no adapter (and none is required).
+fn check_on(
+    scene: &str,
+    reference: &str,
+    mask: Option<&str>,
+    passes: u32,
+    paths: usize,
+    device: Device,
+) -> Option<Outcome> {
+    let gpu = || match device {
+        Device::Cpu => Some(None),
+        Device::Gpu => gpu_or_skip(scene).map(Some),
+    };
     let reference = block_mean(&read_exr(&data(reference)).expect("reference"), BLOCK);
     let skip = mask.map(|m| {
         let (w, h, full) = read_mask(&data(m)).expect("mask");
@@ -90,19 +132,20 @@ fn check(scene: &str, reference: &str, mask: Option<&str>, passes: u32, paths: u
         }
         s
     });
-    let a = render(scene, 1, passes, paths);
-    let b = render(scene, 2, passes, paths);
+    let a = render_on(scene, 1, passes, paths, Mode::Adaptive, gpu()?);
+    let b = render_on(scene, 2, passes, paths, Mode::Adaptive, gpu()?);
     let noise = compare(&a, &b, skip.as_deref()).unwrap().rel_l1 / 2.0;
     let m = compare(&average(&a, &b), &reference, skip.as_deref()).unwrap();
     eprintln!(
-        "{scene}: rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
+        "{scene} ({}): rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
+        if device == Device::Gpu { "GPU" } else { "CPU" },
         m.rel_l1, noise, m.mean[0], m.mean_ref[0]
     );
-    Outcome {
+    Some(Outcome {
         rel_l1: m.rel_l1,
         noise,
         mean_ratio: m.mean[0] / m.mean_ref[0],
-    }
+    })
 }
 
 #[test]
@@ -194,4 +237,32 @@ fn free_path_samplers_agree_within_noise() {
     eprintln!("adaptive vs adaptive {noise:.4}, adaptive vs woodcock {cross:.4}");
     assert!(cross < 1.15 * noise, "{cross} vs {noise}");
     assert!((means.mean[0] / means.mean_ref[0] - 1.0).abs() < 0.01);
+}
+
+/// The beam estimate on the GPU (lavapipe in CI) meets the same bounds as on the CPU, on a
+/// homogeneous, a heterogeneous and a glass scene. Fewer passes than the CPU tests (lavapipe
+/// runs the estimate on the CPU cores); the bound follows the measured noise.
+#[test]
+fn conformance_on_gpu() {
+    let cases = [
+        ("fog-box", None, 0.0011, 0.01),
+        ("smoke-grid", None, 0.001, 0.01),
+        ("glass-caustic", Some("emitter_mask.png"), 0.018, 0.02),
+    ];
+    for (name, mask, ref_noise, mean_tol) in cases {
+        let scene = format!("scenes/conformance/{name}/scene.toml");
+        let reference = format!("tests/data/conformance/{name}/reference.exr");
+        let mask = mask.map(|m| format!("tests/data/conformance/{name}/{m}"));
+        let Some(o) = check_on(&scene, &reference, mask.as_deref(), 48, 20_000, Device::Gpu)
+        else {
+            return;
+        };
+        let bound = 1.3 * o.noise + ref_noise + 0.01;
+        assert!(o.rel_l1 < bound, "{name}: rel_l1 {} >= {bound}", o.rel_l1);
+        assert!(
+            (o.mean_ratio - 1.0).abs() < mean_tol,
+            "{name}: mean ratio {}",
+            o.mean_ratio
+        );
+    }
 }

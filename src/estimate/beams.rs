@@ -7,7 +7,9 @@
 //! sampling that ended them already distributed it.
 //!
 //! Beams are cut into pieces of at most [`PIECE_RADII`] radii and put in an obvhs BVH of
-//! their radius-inflated boxes, so a camera segment only visits beams it can touch.
+//! their radius-inflated boxes, so a camera segment only visits beams it can touch. The
+//! pieces and nodes are `Pod`: the GPU estimate (`gpu::beams`) walks the same arrays.
+use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
@@ -20,16 +22,33 @@ use crate::transport::Beam;
 /// more of them.
 pub const PIECE_RADII: f32 = 12.0;
 
-#[derive(Clone, Copy)]
-struct Piece {
-    beam: u32,
-    s0: f32,
-    s1: f32,
+/// The stretch [s0, s1) of one beam (whose data it copies, so the map owns everything a
+/// query reads). `origin` is the beam's origin: s is measured from it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct BeamPiece {
+    pub origin: [f32; 3],
+    pub s0: f32,
+    pub dir: [f32; 3],
+    pub s1: f32,
+    pub power: [f32; 3],
+    pub beam: u32,
 }
 
-pub struct BeamMap<'a> {
-    beams: &'a [Beam],
-    pieces: Vec<Piece>,
+/// A BVH node as the GPU reads it: an inner node (count 0) has its children at `first`
+/// and `first + 1`; a leaf holds pieces `first .. first + count`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct BvhNode {
+    pub min: [f32; 3],
+    pub count: u32,
+    pub max: [f32; 3],
+    pub first: u32,
+}
+
+pub struct BeamMap {
+    /// In the BVH's primitive order, so leaves index them directly.
+    pieces: Vec<BeamPiece>,
     bvh: Option<Bvh2>,
     radius: f32,
 }
@@ -74,8 +93,8 @@ pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
     })
 }
 
-impl<'a> BeamMap<'a> {
-    pub fn build(beams: &'a [Beam], radius: f32) -> Self {
+impl BeamMap {
+    pub fn build(beams: &[Beam], radius: f32) -> Self {
         let max_len = PIECE_RADII * radius;
         let mut pieces = Vec::with_capacity(beams.len() * 2);
         let mut boxes = Vec::with_capacity(beams.len() * 2);
@@ -86,10 +105,13 @@ impl<'a> BeamMap<'a> {
             for k in 0..n {
                 let (s0, s1) = (k as f32 * step, (k + 1) as f32 * step);
                 let (a, c) = (y + psi * s0, y + psi * s1);
-                pieces.push(Piece {
-                    beam: i as u32,
+                pieces.push(BeamPiece {
+                    origin: b.origin,
                     s0,
+                    dir: b.dir,
                     s1,
+                    power: b.power,
+                    beam: i as u32,
                 });
                 boxes.push(Aabb::new(a.min(c) - radius, a.max(c) + radius));
             }
@@ -101,8 +123,10 @@ impl<'a> BeamMap<'a> {
                 &mut Duration::default(),
             )
         });
+        if let Some(bvh) = &bvh {
+            pieces = bvh.primitive_indices.iter().map(|&i| pieces[i as usize]).collect();
+        }
         BeamMap {
-            beams,
             pieces,
             bvh,
             radius,
@@ -111,6 +135,27 @@ impl<'a> BeamMap<'a> {
 
     pub fn radius(&self) -> f32 {
         self.radius
+    }
+
+    /// The pieces in the order [`Self::nodes`]' leaves index them.
+    pub fn pieces(&self) -> &[BeamPiece] {
+        &self.pieces
+    }
+
+    /// The BVH in the layout the GPU walks (empty when there are no beams).
+    pub fn nodes(&self) -> Vec<BvhNode> {
+        let Some(bvh) = &self.bvh else {
+            return Vec::new();
+        };
+        bvh.nodes
+            .iter()
+            .map(|n| BvhNode {
+                min: Vec3::from(n.aabb.min).into(),
+                count: n.prim_count,
+                max: Vec3::from(n.aabb.max).into(),
+                first: n.first_index,
+            })
+            .collect()
     }
 
     /// Sum of eq. 2 over the beams near the camera segment [t0, t1] of `ray`.
@@ -132,10 +177,9 @@ impl<'a> BeamMap<'a> {
         let mut sum = Rgb::ZERO;
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
         bvh.ray_traverse_anyhit(q, |_, id| {
-            let piece = self.pieces[bvh.primitive_indices[id] as usize];
-            let beam = &self.beams[piece.beam as usize];
-            let psi = Vec3::from(beam.dir);
-            let Some(c) = crossing(ray.o, ray.d, Vec3::from(beam.origin), psi) else {
+            let piece = &self.pieces[id];
+            let psi = Vec3::from(piece.dir);
+            let Some(c) = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi) else {
                 return;
             };
             if c.dist >= r || c.t < t0 || c.t >= t1 || c.s < piece.s0 || c.s >= piece.s1 {
@@ -144,7 +188,7 @@ impl<'a> BeamMap<'a> {
             *evaluations += 1;
             let x = ray.at(c.t);
             let f = in_scatter(x, psi.dot(-ray.d));
-            sum += f * Vec3::from(beam.power) * (kernel(c.dist, r) * tr(c.t) / c.sin_theta);
+            sum += f * Vec3::from(piece.power) * (kernel(c.dist, r) * tr(c.t) / c.sin_theta);
         });
         sum
     }

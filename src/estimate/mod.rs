@@ -2,6 +2,7 @@
 //! and photons at diffuse camera hits (progressive photon mapping), with the radius
 //! schedule of eq. 3.
 pub mod beams;
+pub mod cpu;
 pub mod photons;
 pub mod radius;
 pub mod splat;

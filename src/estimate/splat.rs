@@ -12,24 +12,13 @@ use rayon::prelude::*;
 use super::beams::{crossing, kernel};
 use crate::media::Media;
 use crate::scene::Rgb;
-use crate::transport::camera::Pinhole;
-use crate::transport::transmittance::SegmentTr;
+use crate::transport::camera::{Pinhole, Primary};
 use crate::transport::Beam;
 
 /// Rows per parallel band.
 const BAND: usize = 4;
 /// Beams closer than this to the camera plane are clipped (m).
 const NEAR: f32 = 1e-3;
-
-/// The first segment of every pixel's camera path: its jittered direction and the
-/// distance to the first surface (infinite if none).
-#[derive(Clone, Debug)]
-pub struct Primary {
-    pub dir: Vec3,
-    pub t_surf: f32,
-    /// This pass's estimate of the grids' transmittance along the segment.
-    pub tr: SegmentTr,
-}
 
 /// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance
 /// and the number of kernel evaluations that contributed.

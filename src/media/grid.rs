@@ -209,6 +209,12 @@ impl Grid {
         self.sample_index(self.world_to_index.transform_point3(p.as_dvec3()))
     }
 
+    /// The leaf-slot table (`u32::MAX` = no leaf; else an index into [`Self::leaves`]
+    /// order), its minimum leaf key and its size in leaves, x-major.
+    pub fn leaf_table(&self) -> (&[u32], IVec3, IVec3) {
+        (&self.table, self.table_min, self.table_dim)
+    }
+
     pub fn leaf_count(&self) -> usize {
         self.leaves.len()
     }

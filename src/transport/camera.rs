@@ -1,17 +1,17 @@
 //! Camera paths: one jittered ray per pixel per pass, followed through specular surfaces
-//! to the first diffuse hit. Every camera segment inside media gathers the beam estimate
-//! (with the camera transmittance up to each crossing); the diffuse hit gathers photons.
+//! to the first diffuse hit. The diffuse hit gathers photons; every camera segment inside
+//! media is recorded with its transmittance estimate and path weight, and the beam
+//! estimate along all of them runs afterwards (on the CPU in `estimate::cpu`, or on the
+//! GPU), so camera tracing and the beam estimate can overlap across passes.
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::freepath::FreePath;
 use super::light::enters_glass;
 use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode};
-use super::{timed, Beam, Counters};
+use super::{timed, Counters};
 use crate::bsdf;
-use crate::estimate::beams::BeamMap;
 use crate::estimate::photons::PhotonMap;
-use crate::estimate::splat::{splat, Primary};
 use crate::geometry::{Geometry, Ray, Surface, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
@@ -22,6 +22,12 @@ pub const MAX_SPECULAR: u32 = 64;
 
 /// Dielectric hits (per path) at which both Fresnel branches are followed.
 pub const SPLIT_DEPTH: u32 = 2;
+
+/// Where a camera path records its secondary segments.
+struct Out<'a> {
+    pixel: u32,
+    segments: &'a mut Vec<Secondary>,
+}
 
 #[derive(Clone, Copy)]
 struct PathState {
@@ -117,17 +123,44 @@ impl Pinhole {
     }
 }
 
+/// The first segment of every pixel's camera path: its jittered direction and the
+/// distance to the first surface (infinite if none).
+#[derive(Clone, Debug)]
+pub struct Primary {
+    pub dir: Vec3,
+    pub t_surf: f32,
+    /// This pass's estimate of the grids' transmittance along the segment.
+    pub tr: SegmentTr,
+}
+
+/// A camera segment after one or more specular bounces that runs through media.
+#[derive(Clone, Debug)]
+pub struct Secondary {
+    pub pixel: u32,
+    pub ray: Ray,
+    pub t_surf: f32,
+    /// Path weight (specular factors and transmittance up to the ray origin).
+    pub beta: Rgb,
+    pub tr: SegmentTr,
+}
+
+/// One pass of camera paths, before the beam estimate.
+pub struct CameraPass {
+    /// Radiance of every pixel except the beam estimate (emitters, photons).
+    pub image: Vec<Rgb>,
+    /// One per pixel, row-major.
+    pub primaries: Vec<Primary>,
+    /// In pixel order.
+    pub secondary: Vec<Secondary>,
+    pub counters: Counters,
+}
+
 /// Everything a camera pass reads.
 pub struct CameraTracer<'a> {
     pub camera: &'a Pinhole,
     pub geometry: &'a Geometry,
     pub media: &'a Media,
     pub free_path: &'a dyn FreePath,
-    pub beams: &'a [Beam],
-    /// BVH over the beams for camera segments after specular bounces; None when the camera
-    /// cannot reach a specular surface.
-    pub beam_map: Option<&'a BeamMap<'a>>,
-    pub beam_radius: f32,
     /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
     pub tr_mode: TrMode,
@@ -135,14 +168,9 @@ pub struct CameraTracer<'a> {
 }
 
 impl CameraTracer<'_> {
-    /// Radiance of every pixel for one pass (row-major, top row first). `strat` holds the
-    /// stratified free paths when that estimator is on.
-    pub fn trace_pass(
-        &self,
-        seed: u64,
-        pass: u32,
-        strat: Option<&mut StratStore>,
-    ) -> (Vec<Rgb>, Counters) {
+    /// Camera paths of every pixel for one pass (row-major, top row first). `strat` holds
+    /// the stratified free paths when that estimator is on.
+    pub fn trace_pass(&self, seed: u64, pass: u32, strat: Option<&mut StratStore>) -> CameraPass {
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
         // Stratified blocks of N passes keep each pixel's jitter for the whole block.
         let (block, regenerate, mut rows_mut) = match strat {
@@ -159,11 +187,13 @@ impl CameraTracer<'_> {
             None => (None, false, Vec::new()),
         };
         rows_mut.resize_with(h, || None);
-        let rows: Vec<(Vec<(Rgb, Primary)>, Counters)> = rows_mut
+        type Row = (Vec<(Rgb, Primary)>, Vec<Secondary>, Counters);
+        let rows: Vec<Row> = rows_mut
             .into_par_iter()
             .enumerate()
             .map(|(y, mut row_store)| {
                 let mut c = Counters::default();
+                let mut secondary = Vec::new();
                 let row = (0..w)
                     .map(|x| {
                         let idx = (y * w + x) as u64;
@@ -182,46 +212,42 @@ impl CameraTracer<'_> {
                                 block_rng: Rng::for_path(seed, b, Stream::TrBlock, idx),
                             }
                         });
-                        self.radiance(ray, &mut rng, &mut c, strat)
+                        let mut out = Out {
+                            pixel: idx as u32,
+                            segments: &mut secondary,
+                        };
+                        self.radiance(ray, &mut rng, &mut c, strat, &mut out)
                     })
                     .collect();
-                (row, c)
+                (row, secondary, c)
             })
             .collect();
-        let mut img = Vec::with_capacity(w * h);
-        let mut primaries = Vec::with_capacity(w * h);
-        let mut counters = Counters::default();
-        for (row, c) in rows {
+        let mut pass = CameraPass {
+            image: Vec::with_capacity(w * h),
+            primaries: Vec::with_capacity(w * h),
+            secondary: Vec::new(),
+            counters: Counters::default(),
+        };
+        for (row, secondary, c) in rows {
             for (l, p) in row {
-                img.push(l);
-                primaries.push(p);
+                pass.image.push(l);
+                pass.primaries.push(p);
             }
-            counters.add(&c);
+            pass.secondary.extend(secondary);
+            pass.counters.add(&c);
         }
-        if !self.media.is_empty() && !self.beams.is_empty() {
-            let (beam_img, evals) = splat(
-                self.camera,
-                &primaries,
-                self.beams,
-                self.beam_radius,
-                self.media,
-            );
-            counters.beam_evaluations += evals;
-            for (a, b) in img.iter_mut().zip(beam_img) {
-                *a += b;
-            }
-        }
-        (img, counters)
+        pass
     }
 
-    /// Radiance along one camera path, except the beam estimate of its first segment,
-    /// which [`splat`] adds for all pixels at once; returns that segment too.
+    /// Radiance along one camera path except the beam estimates; returns its first
+    /// segment and records the later ones in media into `out`.
     fn radiance(
         &self,
         ray: Ray,
         rng: &mut Rng,
         c: &mut Counters,
         strat: Option<StratPixel>,
+        out: &mut Out,
     ) -> (Rgb, Primary) {
         c.camera_rays += 1;
         let mut primary = Primary {
@@ -234,7 +260,7 @@ impl CameraTracer<'_> {
             depth: 0,
             in_glass: false,
         };
-        let l = self.follow(ray, state, rng, c, Some(&mut primary), strat);
+        let l = self.follow(ray, state, rng, c, Some(&mut primary), strat, out);
         (l, primary)
     }
 
@@ -249,6 +275,7 @@ impl CameraTracer<'_> {
         c: &mut Counters,
         mut primary: Option<&mut Primary>,
         mut strat: Option<StratPixel>,
+        out: &mut Out,
     ) -> Rgb {
         let mut l = Rgb::ZERO;
         while st.depth < MAX_SPECULAR {
@@ -258,8 +285,14 @@ impl CameraTracer<'_> {
             if let Some(p) = primary.take() {
                 p.t_surf = t_surf;
                 p.tr = gtr.clone();
-            } else if !st.in_glass {
-                l += st.beta * self.media_segment(&ray, t_surf, &gtr, c);
+            } else if !st.in_glass && !self.media.spans(&ray, t_surf).is_empty() {
+                out.segments.push(Secondary {
+                    pixel: out.pixel,
+                    ray,
+                    t_surf,
+                    beta: st.beta,
+                    tr: gtr.clone(),
+                });
             }
             if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
                 let tau = self.media.optical_depth(&ray, 0.0, t_surf);
@@ -290,7 +323,7 @@ impl CameraTracer<'_> {
                             in_glass: enters_glass(&material, dir, h.ng),
                             ..st
                         };
-                        l += self.follow(leave(&h, dir), next, rng, c, None, None);
+                        l += self.follow(leave(&h, dir), next, rng, c, None, None, out);
                     }
                     break;
                 }
@@ -328,20 +361,6 @@ impl CameraTracer<'_> {
         });
         (c.timing_ticks, c.transmittance_seconds) = (tick, secs);
         tr
-    }
-
-    /// In-scattered radiance from the beams along [0, t_surf], attenuated to the ray origin.
-    fn media_segment(&self, ray: &Ray, t_surf: f32, gtr: &SegmentTr, c: &mut Counters) -> Rgb {
-        let Some(beams) = self.beam_map.filter(|_| !self.media.is_empty()) else {
-            return Rgb::ZERO;
-        };
-        let mut l = Rgb::ZERO;
-        for (t0, t1) in self.media.spans(ray, t_surf) {
-            let tr = |t: f32| (-self.media.optical_depth(ray, 0.0, t)).exp() * gtr.eval(t);
-            let scatter = |x: Vec3, cos: f32| self.media.in_scatter(x, cos);
-            l += beams.radiance(ray, t0, t1, scatter, tr, &mut c.beam_evaluations);
-        }
-        l
     }
 }
 

@@ -109,6 +109,26 @@ impl SegmentTr {
     }
 }
 
+impl SegmentTr {
+    /// The estimate as a step function: (t_k, value for t > t_k), t_k ascending, appended
+    /// to `out` (before the first step the value is 1). What the GPU estimate reads.
+    pub fn steps(&self, out: &mut Vec<[f32; 2]>) {
+        match self {
+            SegmentTr::Clear => {}
+            SegmentTr::FreePaths { lengths, m } => {
+                let m = *m as usize;
+                let mut finite: SmallVec<[f32; MAX_TR_SAMPLES]> =
+                    lengths[..m].iter().copied().filter(|l| l.is_finite()).collect();
+                finite.sort_by(f32::total_cmp);
+                for (k, &l) in finite.iter().enumerate() {
+                    out.push([l, (m - k - 1) as f32 / m as f32]);
+                }
+            }
+            SegmentTr::Ratio(steps) => out.extend(steps.iter().map(|&(t, v)| [t, v])),
+        }
+    }
+}
+
 /// Per-pixel free paths of the current stratified block.
 pub struct StratStore {
     /// Free paths per pixel per block (N).

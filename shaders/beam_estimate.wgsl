@@ -1,0 +1,289 @@
+// The beam radiance estimate (eq. 2) for every camera segment of one pass, one invocation
+// per pixel: each walks the beam BVH for each of its pixel's segments and adds
+// beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) to the pixel's float32
+// accumulator. Mirrors `estimate::beams::BeamMap::radiance` and `media::Media` exactly;
+// the structs match the `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
+
+const MAX_BOXES: u32 = 16u;
+const MAX_GRIDS: u32 = 8u;
+const EMPTY: u32 = 0xffffffffu;
+const PI: f32 = 3.14159265358979;
+const STACK: u32 = 64u;
+
+struct MediumBox {
+    min: vec3<f32>,
+    sigma_t: f32,
+    max: vec3<f32>,
+    g: f32,
+    albedo: vec3<f32>,
+    _pad: f32,
+}
+
+struct GridMeta {
+    row0: vec4<f32>,
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    bmin: vec3<f32>,
+    density_scale: f32,
+    bmax: vec3<f32>,
+    g: f32,
+    albedo: vec3<f32>,
+    background: f32,
+    table_min: vec3<i32>,
+    leaf_base: u32,
+    table_dim: vec3<i32>,
+    table_base: u32,
+    tile_base: u32,
+    tile_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+struct Params {
+    pixels: u32,
+    radius: f32,
+    box_count: u32,
+    grid_count: u32,
+    boxes: array<MediumBox, MAX_BOXES>,
+    grids: array<GridMeta, MAX_GRIDS>,
+}
+
+struct Chunk {
+    first_pixel: u32,
+    count: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+struct Segment {
+    origin: vec3<f32>,
+    t0: f32,
+    dir: vec3<f32>,
+    t1: f32,
+    beta: vec3<f32>,
+    tr_first: u32,
+    tr_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+struct BvhNode {
+    min: vec3<f32>,
+    count: u32,
+    max: vec3<f32>,
+    first: u32,
+}
+
+struct BeamPiece {
+    origin: vec3<f32>,
+    s0: f32,
+    dir: vec3<f32>,
+    s1: f32,
+    power: vec3<f32>,
+    beam: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> chunk: Chunk;
+@group(0) @binding(2) var<storage, read> segments: array<Segment>;
+@group(0) @binding(3) var<storage, read> pixel_first: array<u32>;
+@group(0) @binding(4) var<storage, read> tr_steps: array<vec2<f32>>;
+@group(0) @binding(5) var<storage, read> nodes: array<BvhNode>;
+@group(0) @binding(6) var<storage, read> pieces: array<BeamPiece>;
+@group(0) @binding(7) var<storage, read> grid_data: array<u32>;
+@group(0) @binding(8) var<storage, read_write> accum: array<vec4<f32>>;
+
+fn hg(g: f32, cos_theta: f32) -> f32 {
+    let denom = 1.0 + g * g - 2.0 * g * cos_theta;
+    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(max(denom, 1e-12)));
+}
+
+fn inside(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> bool {
+    return all(p >= lo) && all(p <= hi);
+}
+
+fn safe_inv(d: vec3<f32>) -> vec3<f32> {
+    return 1.0 / select(d, vec3<f32>(1e-30), abs(d) < vec3<f32>(1e-30));
+}
+
+// Length of [t0, t1] inside the box (0 when they miss), as `media::ray_box`.
+fn box_overlap(o: vec3<f32>, inv: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t0: f32, t1: f32) -> f32 {
+    let a = (lo - o) * inv;
+    let b = (hi - o) * inv;
+    let near = max(max(max(min(a.x, b.x), min(a.y, b.y)), min(a.z, b.z)), t0);
+    let far = min(min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z)), t1);
+    return select(0.0, far - near, near < far);
+}
+
+fn voxel(gi: u32, ijk: vec3<i32>) -> f32 {
+    let m = params.grids[gi];
+    let key = ijk >> vec3<u32>(3u);
+    let d = key - m.table_min;
+    if all(d >= vec3<i32>(0)) && all(d < m.table_dim) {
+        let slot = grid_data[m.table_base + u32((d.x * m.table_dim.y + d.y) * m.table_dim.z + d.z)];
+        if slot != EMPTY {
+            let l = ijk & vec3<i32>(7);
+            return bitcast<f32>(grid_data[m.leaf_base + slot * 512u + u32((l.x * 8 + l.y) * 8 + l.z)]);
+        }
+    }
+    for (var k = 0u; k < m.tile_count; k++) {
+        let t = m.tile_base + 7u * k;
+        let lo = vec3<i32>(bitcast<i32>(grid_data[t]), bitcast<i32>(grid_data[t + 1u]), bitcast<i32>(grid_data[t + 2u]));
+        let hi = vec3<i32>(bitcast<i32>(grid_data[t + 3u]), bitcast<i32>(grid_data[t + 4u]), bitcast<i32>(grid_data[t + 5u]));
+        if all(ijk >= lo) && all(ijk <= hi) {
+            return bitcast<f32>(grid_data[t + 6u]);
+        }
+    }
+    return m.background;
+}
+
+// Extinction of grid `gi` at world point p: trilinear between voxel centres.
+fn grid_sigma_t(gi: u32, p: vec3<f32>) -> f32 {
+    let m = params.grids[gi];
+    if !inside(p, m.bmin, m.bmax) {
+        return 0.0;
+    }
+    let p4 = vec4<f32>(p, 1.0);
+    let q = vec3<f32>(dot(m.row0, p4), dot(m.row1, p4), dot(m.row2, p4));
+    let f = floor(q);
+    let t = q - f;
+    let i = vec3<i32>(f);
+    let x00 = mix(voxel(gi, i), voxel(gi, i + vec3<i32>(1, 0, 0)), t.x);
+    let x10 = mix(voxel(gi, i + vec3<i32>(0, 1, 0)), voxel(gi, i + vec3<i32>(1, 1, 0)), t.x);
+    let x01 = mix(voxel(gi, i + vec3<i32>(0, 0, 1)), voxel(gi, i + vec3<i32>(1, 0, 1)), t.x);
+    let x11 = mix(voxel(gi, i + vec3<i32>(0, 1, 1)), voxel(gi, i + vec3<i32>(1, 1, 1)), t.x);
+    let v = mix(mix(x00, x10, t.y), mix(x01, x11, t.y), t.z);
+    return m.density_scale * max(v, 0.0);
+}
+
+// sum_i sigma_s,i(x) f_i(cos): the media's in-scattering at x, as `Media::in_scatter`.
+fn in_scatter(x: vec3<f32>, cos_theta: f32) -> vec3<f32> {
+    var l = vec3<f32>(0.0);
+    for (var i = 0u; i < params.box_count; i++) {
+        let b = params.boxes[i];
+        if inside(x, b.min, b.max) {
+            l += b.albedo * (b.sigma_t * hg(b.g, cos_theta));
+        }
+    }
+    for (var i = 0u; i < params.grid_count; i++) {
+        let s = grid_sigma_t(i, x);
+        if s > 0.0 {
+            l += params.grids[i].albedo * (s * hg(params.grids[i].g, cos_theta));
+        }
+    }
+    return l;
+}
+
+// The grid transmittance estimate at t: the value after the last step before t.
+fn grid_tr(seg: Segment, t: f32) -> f32 {
+    var lo = 0u;
+    var hi = seg.tr_count;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if tr_steps[seg.tr_first + mid].x < t {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    if lo == 0u {
+        return 1.0;
+    }
+    return tr_steps[seg.tr_first + lo - 1u].y;
+}
+
+fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
+    var tau = 0.0;
+    for (var i = 0u; i < params.box_count; i++) {
+        let b = params.boxes[i];
+        tau += box_overlap(seg.origin, inv, b.min, b.max, 0.0, t) * b.sigma_t;
+    }
+    return exp(-tau) * grid_tr(seg, t);
+}
+
+fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec3<f32> {
+    let r = params.radius;
+    let w = seg.dir;
+    let psi = p.dir;
+    let b = dot(w, psi);
+    let sin2 = 1.0 - b * b;
+    if sin2 < 1e-10 {
+        return vec3<f32>(0.0);
+    }
+    let w0 = seg.origin - p.origin;
+    let d = dot(w, w0);
+    let e = dot(psi, w0);
+    let t = (b * e - d) / sin2;
+    let s = (e - b * d) / sin2;
+    let dist = length(w0 + w * t - psi * s);
+    if dist >= r || t < seg.t0 || t >= seg.t1 || s < p.s0 || s >= p.s1 {
+        return vec3<f32>(0.0);
+    }
+    let x = seg.origin + w * t;
+    let f = in_scatter(x, dot(psi, -w));
+    return f * p.power * ((0.5 / r) * camera_tr(seg, inv, t) / sqrt(sin2));
+}
+
+fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
+    let a = (n.min - o) * inv;
+    let b = (n.max - o) * inv;
+    let near = max(max(max(min(a.x, b.x), min(a.y, b.y)), min(a.z, b.z)), t0);
+    let far = min(min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z)), t1);
+    return near <= far;
+}
+
+fn segment_radiance(seg: Segment) -> vec3<f32> {
+    let inv = safe_inv(seg.dir);
+    var sum = vec3<f32>(0.0);
+    if arrayLength(&nodes) == 0u || !hits(nodes[0], seg.origin, inv, seg.t0, seg.t1) {
+        return sum;
+    }
+    var stack: array<u32, STACK>;
+    var sp = 0u;
+    var node = 0u;
+    loop {
+        let n = nodes[node];
+        if n.count > 0u {
+            for (var k = 0u; k < n.count; k++) {
+                sum += piece_radiance(seg, inv, pieces[n.first + k]);
+            }
+        } else {
+            let a = n.first;
+            let hit_a = hits(nodes[a], seg.origin, inv, seg.t0, seg.t1);
+            let hit_b = hits(nodes[a + 1u], seg.origin, inv, seg.t0, seg.t1);
+            if hit_a && hit_b && sp < STACK {
+                stack[sp] = a + 1u;
+                sp++;
+                node = a;
+                continue;
+            } else if hit_a {
+                node = a;
+                continue;
+            } else if hit_b {
+                node = a + 1u;
+                continue;
+            }
+        }
+        if sp == 0u {
+            break;
+        }
+        sp--;
+        node = stack[sp];
+    }
+    return sum;
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= chunk.count {
+        return;
+    }
+    let pixel = chunk.first_pixel + id.x;
+    var l = vec3<f32>(0.0);
+    for (var i = pixel_first[pixel]; i < pixel_first[pixel + 1u]; i++) {
+        let seg = segments[i];
+        l += seg.beta * segment_radiance(seg);
+    }
+    accum[pixel] += vec4<f32>(l, 0.0);
+}

@@ -1,0 +1,52 @@
+//! The beam estimate of one traced pass on the CPU: primary segments by splatting (cheapest
+//! on a CPU, see `splat`), segments after specular bounces through the beam BVH. The GPU
+//! path (`gpu::beams`) computes the same sums.
+use rayon::prelude::*;
+
+use super::beams::BeamMap;
+use super::splat::splat;
+use crate::media::Media;
+use crate::scene::Rgb;
+use crate::transport::camera::{CameraPass, Pinhole, Secondary};
+use crate::transport::Beam;
+
+/// Per-pixel beam radiance of a pass and the number of kernel evaluations.
+pub fn beam_image(
+    camera: &Pinhole,
+    media: &Media,
+    pass: &CameraPass,
+    beams: &[Beam],
+    map: Option<&BeamMap>,
+    radius: f32,
+) -> (Vec<Rgb>, u64) {
+    let pixels = pass.primaries.len();
+    if media.is_empty() || beams.is_empty() {
+        return (vec![Rgb::ZERO; pixels], 0);
+    }
+    let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media);
+    if let Some(map) = map {
+        let per_segment: Vec<(Rgb, u64)> = pass
+            .secondary
+            .par_iter()
+            .map(|s| secondary_radiance(media, map, s))
+            .collect();
+        for (s, (l, e)) in pass.secondary.iter().zip(per_segment) {
+            img[s.pixel as usize] += l;
+            evals += e;
+        }
+    }
+    (img, evals)
+}
+
+/// beta times the beams' in-scattered radiance along one secondary segment.
+fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Rgb, u64) {
+    let ray = &s.ray;
+    let mut evals = 0;
+    let mut l = Rgb::ZERO;
+    for (t0, t1) in media.spans(ray, s.t_surf) {
+        let tr = |t: f32| (-media.optical_depth(ray, 0.0, t)).exp() * s.tr.eval(t);
+        let scatter = |x, cos| media.in_scatter(x, cos);
+        l += map.radiance(ray, t0, t1, scatter, tr, &mut evals);
+    }
+    (s.beta * l, evals)
+}

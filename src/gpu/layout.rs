@@ -1,0 +1,229 @@
+//! The GPU beam estimate's buffers as `Pod` structs, defined once: the CPU fills them from
+//! [`Media`] and the traced pass, and `shaders/beam_estimate.wgsl` declares the same
+//! layouts (checked by the naga test in `gpu::tests`). Beams travel as
+//! [`crate::estimate::beams::BeamPiece`] and [`crate::estimate::beams::BvhNode`].
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::{Error, Result};
+use crate::media::grid::Grid;
+use crate::media::{GridMedium, Media};
+use crate::transport::camera::{CameraPass, Primary, Secondary};
+use crate::transport::transmittance::SegmentTr;
+use glam::Vec3;
+
+/// Homogeneous media and grids the uniform block has room for.
+pub const MAX_BOXES: usize = 16;
+pub const MAX_GRIDS: usize = 8;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct MediumBox {
+    pub min: [f32; 3],
+    pub sigma_t: f32,
+    pub max: [f32; 3],
+    pub g: f32,
+    pub albedo: [f32; 3],
+    pub _pad: f32,
+}
+
+/// One grid medium: its world-to-index map (rows of a 3x4 matrix), world box, optics and
+/// where its leaf table, leaf values and tiles start in the shared `grid_data` buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GridMeta {
+    pub rows: [[f32; 4]; 3],
+    pub bmin: [f32; 3],
+    pub density_scale: f32,
+    pub bmax: [f32; 3],
+    pub g: f32,
+    pub albedo: [f32; 3],
+    pub background: f32,
+    pub table_min: [i32; 3],
+    pub leaf_base: u32,
+    pub table_dim: [i32; 3],
+    pub table_base: u32,
+    pub tile_base: u32,
+    pub tile_count: u32,
+    pub _pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct Params {
+    pub pixels: u32,
+    pub radius: f32,
+    pub box_count: u32,
+    pub grid_count: u32,
+    pub boxes: [MediumBox; MAX_BOXES],
+    pub grids: [GridMeta; MAX_GRIDS],
+}
+
+/// The pixels one dispatch covers (dispatches are split so none runs long enough to
+/// lose the device).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Chunk {
+    pub first_pixel: u32,
+    pub count: u32,
+    pub _pad: [u32; 2],
+}
+
+/// A camera segment [t0, t1) of a ray with path weight beta; its grid transmittance is
+/// the step function `tr_steps[tr_first .. tr_first + tr_count]`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Segment {
+    pub origin: [f32; 3],
+    pub t0: f32,
+    pub dir: [f32; 3],
+    pub t1: f32,
+    pub beta: [f32; 3],
+    pub tr_first: u32,
+    pub tr_count: u32,
+    pub _pad: [u32; 3],
+}
+
+/// The media part of [`Params`] and the `grid_data` words (leaf tables, leaf values and
+/// tiles of every grid, f32 stored as bits).
+pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
+    if media.media.len() > MAX_BOXES || media.grids.len() > MAX_GRIDS {
+        return Err(Error::Other(format!(
+            "the GPU estimate handles up to {MAX_BOXES} homogeneous media and {MAX_GRIDS} grids; \
+             this scene has {} and {} (use --device cpu)",
+            media.media.len(),
+            media.grids.len()
+        )));
+    }
+    let mut p = Params {
+        pixels: 0,
+        radius: 0.0,
+        box_count: media.media.len() as u32,
+        grid_count: media.grids.len() as u32,
+        boxes: [MediumBox::default(); MAX_BOXES],
+        grids: [GridMeta::default(); MAX_GRIDS],
+    };
+    for (b, m) in p.boxes.iter_mut().zip(&media.media) {
+        *b = MediumBox {
+            min: m.bounds[0].into(),
+            sigma_t: m.sigma_t,
+            max: m.bounds[1].into(),
+            g: m.phase.g,
+            albedo: m.albedo.into(),
+            _pad: 0.0,
+        };
+    }
+    let mut data = Vec::new();
+    for (meta, g) in p.grids.iter_mut().zip(&media.grids) {
+        *meta = grid_meta(g, &mut data)?;
+    }
+    Ok((p, data))
+}
+
+fn grid_meta(g: &GridMedium, data: &mut Vec<u32>) -> Result<GridMeta> {
+    let grid: &Grid = &g.grid;
+    let m = g.world_to_index.matrix3;
+    let t = g.world_to_index.translation;
+    let rows = [0, 1, 2].map(|r| {
+        [
+            m.col(0)[r] as f32,
+            m.col(1)[r] as f32,
+            m.col(2)[r] as f32,
+            t[r] as f32,
+        ]
+    });
+    let (table, table_min, table_dim) = grid.leaf_table();
+    let offset = |data: &Vec<u32>| {
+        u32::try_from(data.len())
+            .map_err(|_| Error::Other(format!("{}: grid too large for the GPU", g.source)))
+    };
+    let table_base = offset(data)?;
+    data.extend_from_slice(table);
+    let leaf_base = offset(data)?;
+    for (_, leaf) in grid.leaves() {
+        data.extend(leaf.values.iter().map(|v| v.to_bits()));
+    }
+    let tile_base = offset(data)?;
+    for tile in grid.tiles() {
+        data.extend(tile.min.to_array().map(|v| v as u32));
+        data.extend(tile.max.to_array().map(|v| v as u32));
+        data.push(tile.value.to_bits());
+    }
+    offset(data)?;
+    Ok(GridMeta {
+        rows,
+        bmin: g.bounds[0].into(),
+        density_scale: g.density_scale,
+        bmax: g.bounds[1].into(),
+        g: g.phase.g,
+        albedo: g.albedo.into(),
+        background: grid.background,
+        table_min: table_min.to_array(),
+        leaf_base,
+        table_dim: table_dim.to_array(),
+        table_base,
+        tile_base,
+        tile_count: grid.tiles().len() as u32,
+        _pad: [0; 2],
+    })
+}
+
+/// One pass's camera segments in pixel order, the per-pixel ranges into them
+/// (`pixels + 1` entries) and the transmittance steps.
+#[derive(Default)]
+pub struct Segments {
+    pub segments: Vec<Segment>,
+    pub pixel_first: Vec<u32>,
+    pub tr_steps: Vec<[f32; 2]>,
+}
+
+/// Segments with an unbounded end get this t1 (WGSL has no infinity literal).
+const FAR: f32 = f32::MAX;
+
+impl Segments {
+    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> Segments {
+        let bounds = media.bounds();
+        let mut out = Segments {
+            segments: Vec::with_capacity(pass.primaries.len()),
+            pixel_first: Vec::with_capacity(pass.primaries.len() + 1),
+            tr_steps: Vec::new(),
+        };
+        let mut next = pass.secondary.iter().peekable();
+        for (pixel, p) in pass.primaries.iter().enumerate() {
+            out.pixel_first.push(out.segments.len() as u32);
+            if touches(origin, p, bounds) {
+                out.push(origin, p.dir, p.t_surf, Vec3::ONE, &p.tr);
+            }
+            while let Some(s) = next.next_if(|s| s.pixel as usize == pixel) {
+                out.push_secondary(s);
+            }
+        }
+        out.pixel_first.push(out.segments.len() as u32);
+        out
+    }
+
+    fn push_secondary(&mut self, s: &Secondary) {
+        self.push(s.ray.o, s.ray.d, s.t_surf, s.beta, &s.tr);
+    }
+
+    fn push(&mut self, o: Vec3, d: Vec3, t_surf: f32, beta: Vec3, tr: &SegmentTr) {
+        let tr_first = self.tr_steps.len() as u32;
+        tr.steps(&mut self.tr_steps);
+        self.segments.push(Segment {
+            origin: o.into(),
+            t0: 0.0,
+            dir: d.into(),
+            t1: if t_surf.is_finite() { t_surf } else { FAR },
+            beta: beta.into(),
+            tr_first,
+            tr_count: self.tr_steps.len() as u32 - tr_first,
+            _pad: [0; 3],
+        });
+    }
+}
+
+/// Whether a primary segment can meet the media at all (others carry no beam radiance).
+fn touches(origin: Vec3, p: &Primary, bounds: Option<[Vec3; 2]>) -> bool {
+    let Some(b) = bounds else { return false };
+    let ray = crate::geometry::Ray::new(origin, p.dir);
+    crate::media::homogeneous::ray_box(&ray, &b, 0.0, p.t_surf).is_some()
+}

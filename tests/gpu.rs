@@ -1,0 +1,167 @@
+//! The GPU beam estimate against the CPU's: the same traced pass (beams, camera segments,
+//! transmittance estimates) must give the same per-pixel beam radiance on both devices
+//! within float32 rounding. On a machine without an adapter these tests print why they
+//! skip, unless PPB_REQUIRE_GPU=1 (CI, which installs lavapipe) makes that a failure.
+use std::path::Path;
+use std::process::Command;
+
+use ppb::estimate::cpu::beam_image;
+use ppb::gpu::beams::GpuBeams;
+use ppb::gpu::{self, DeviceKind, Gpu};
+use ppb::render::Renderer;
+use ppb::scene::toml::load;
+use ppb::transport::transmittance::TrMode;
+
+fn data(p: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+/// An adapter (software ones included), or None after printing why the test skips.
+pub fn gpu_or_skip(test: &str) -> Option<Gpu> {
+    match gpu::open(DeviceKind::Gpu) {
+        Ok(g) => g,
+        Err(e) if std::env::var("PPB_REQUIRE_GPU").as_deref() == Ok("1") => {
+            panic!("{test}: PPB_REQUIRE_GPU=1 but {e}")
+        }
+        Err(e) => {
+            eprintln!("{test}: skipped: {e}");
+            None
+        }
+    }
+}
+
+struct Parity {
+    /// Largest |gpu - cpu| / max(cpu, floor) over pixels and channels, floor = 1e-3 of
+    /// the image's largest value.
+    max_rel: f64,
+    /// sum |gpu - cpu| / sum |cpu|.
+    rel_l1: f64,
+    lit_pixels: usize,
+    evaluations: u64,
+    secondary: usize,
+}
+
+fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> Option<Parity> {
+    let g = gpu_or_skip(scene)?;
+    let file = load(&data(scene)).expect("scene loads");
+    let mut s = file.settings.clone();
+    (s.width, s.height, s.beams_per_pass, s.tr_mode) = (size, size, beams, tr);
+    let r = Renderer::new(&file.scene, s).expect("renderer");
+    let mut est = GpuBeams::new(g, r.media(), r.camera().origin(), size * size).expect("gpu");
+    let mut out = Parity {
+        max_rel: 0.0,
+        rel_l1: 0.0,
+        lit_pixels: 0,
+        evaluations: 0,
+        secondary: 0,
+    };
+    let (mut diff, mut total) = (0.0f64, 0.0f64);
+    for &i in passes {
+        let t = r.trace(i, true);
+        let (cpu, evals) = beam_image(
+            r.camera(),
+            r.media(),
+            &t.camera,
+            &t.beams,
+            t.beam_map.as_ref(),
+            t.beam_radius,
+        );
+        est.clear().expect("clear");
+        est.submit(&t, r.media()).expect("submit");
+        let (acc, _) = est.read().expect("read back");
+        let top = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max) as f64;
+        let floor = 1e-3 * top;
+        for (c, g) in cpu.iter().zip(&acc) {
+            for k in 0..3 {
+                let (a, b) = (c[k] as f64, g[k] as f64);
+                diff += (a - b).abs();
+                total += a.abs();
+                out.max_rel = out.max_rel.max((a - b).abs() / a.abs().max(floor));
+            }
+            out.lit_pixels += usize::from(c.max_element() > 0.0);
+        }
+        out.evaluations += evals;
+        out.secondary += t.camera.secondary.len();
+    }
+    out.rel_l1 = diff / total;
+    eprintln!(
+        "{scene}: max rel {:.2e}, rel_l1 {:.2e}, {} lit pixels, {} evaluations, {} secondary segments",
+        out.max_rel, out.rel_l1, out.lit_pixels, out.evaluations, out.secondary
+    );
+    Some(out)
+}
+
+/// Heterogeneous media: grid lookups, ratio-tracking steps and the splat vs BVH query.
+#[test]
+fn gpu_matches_cpu_on_smoke_grid() {
+    let scene = "scenes/conformance/smoke-grid/scene.toml";
+    for tr in [TrMode::Ratio, TrMode::Random] {
+        let Some(p) = parity(scene, 64, 4000, tr, &[1, 7]) else {
+            return;
+        };
+        assert!(p.evaluations > 20_000 && p.lit_pixels > 1000);
+        assert!(p.max_rel < 1e-3, "{tr:?}: max relative difference {}", p.max_rel);
+        assert!(p.rel_l1 < 1e-5, "{tr:?}: rel_l1 {}", p.rel_l1);
+    }
+}
+
+/// Glass: camera segments after refraction and reflection, weighted by Fresnel.
+#[test]
+fn gpu_matches_cpu_on_glass_caustic() {
+    let scene = "scenes/conformance/glass-caustic/scene.toml";
+    let Some(p) = parity(scene, 64, 4000, TrMode::Ratio, &[1, 3]) else {
+        return;
+    };
+    assert!(p.secondary > 100 && p.evaluations > 10_000);
+    assert!(p.max_rel < 1e-3, "max relative difference {}", p.max_rel);
+    assert!(p.rel_l1 < 1e-5, "rel_l1 {}", p.rel_l1);
+}
+
+/// The command line: `--device gpu` renders, says which adapter, and the stats file
+/// records the GPU time and its overlap with tracing; a backend that does not exist here
+/// gives one clear error line, not a panic.
+#[test]
+fn render_on_gpu_from_the_command_line() {
+    if gpu_or_skip("render_on_gpu_from_the_command_line").is_none() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("ppb-gpu-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("smoke.exr");
+    let stats = dir.join("stats.json");
+    let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
+        .args(["render", "--device", "gpu", "--size", "32x32", "--passes", "6"])
+        .args(["--beams", "2000", "--quiet", "--cache-dir"])
+        .arg(dir.join("cache"))
+        .arg("-o")
+        .arg(&out)
+        .arg("--stats")
+        .arg(&stats)
+        .arg(data("scenes/conformance/smoke-grid/scene.toml"))
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let g = &json["gpu"];
+    assert_eq!(g["passes"], 6, "{json}");
+    assert!(g["estimate_seconds"].as_f64().unwrap() > 0.0);
+    assert!(g["overlap_seconds"].as_f64().is_some());
+    assert!(json["device"].as_str().unwrap() != "cpu");
+    let img = ppb::output::read_exr(&out).unwrap();
+    assert!(img.pixels.iter().any(|p| p[0] > 0.0));
+
+    let none = Command::new(env!("CARGO_BIN_EXE_ppb"))
+        .env("WGPU_BACKEND", if cfg!(target_os = "macos") { "dx12" } else { "metal" })
+        .args(["render", "--device", "gpu", "--size", "8x8", "--passes", "1", "--quiet"])
+        .arg("-o")
+        .arg(dir.join("none.exr"))
+        .arg(data("scenes/conformance/fog-box/scene.toml"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&none.stderr);
+    assert_eq!(none.status.code(), Some(2), "{err}");
+    assert!(err.contains("no GPU adapter") && err.lines().count() == 1, "{err}");
+    assert!(!dir.join("none.exr").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
