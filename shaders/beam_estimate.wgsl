@@ -1,14 +1,14 @@
-// The beam radiance estimate (eq. 2) for every camera segment of one pass, one invocation
-// per pixel: each walks the beam BVH for each of its pixel's segments and adds
-// beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) to the pixel's float32
-// accumulator. Mirrors `estimate::beams::BeamMap::radiance` and `media::Media` exactly;
+// The beam radiance estimate (eq. 2) for every camera segment of one pass, in two kernels:
+// `segment_main`, one invocation per segment, walks the beam BVH and writes
+// beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) (and, in w, the number of
+// kernel evaluations); `pixel_main`, one invocation per pixel, adds its segments' results
+// to the pixel's float32 accumulator in segment order (deterministic sums). Mirrors `estimate::beams::BeamMap::radiance` and `media::Media` exactly;
 // the structs match the `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
 
 const MAX_BOXES: u32 = 16u;
 const MAX_GRIDS: u32 = 8u;
 const EMPTY: u32 = 0xffffffffu;
 const PI: f32 = 3.14159265358979;
-const STACK: u32 = 64u;
 
 struct MediumBox {
     min: vec3<f32>,
@@ -49,7 +49,7 @@ struct Params {
 }
 
 struct Chunk {
-    first_pixel: u32,
+    first: u32,
     count: u32,
     _pad0: u32,
     _pad1: u32,
@@ -70,9 +70,13 @@ struct Segment {
 
 struct BvhNode {
     min: vec3<f32>,
-    count: u32,
+    skip: u32,
     max: vec3<f32>,
     first: u32,
+    count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 struct BeamPiece {
@@ -93,6 +97,7 @@ struct BeamPiece {
 @group(0) @binding(6) var<storage, read> pieces: array<BeamPiece>;
 @group(0) @binding(7) var<storage, read> grid_data: array<u32>;
 @group(0) @binding(8) var<storage, read_write> accum: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> seg_out: array<vec4<f32>>;
 
 fn hg(g: f32, cos_theta: f32) -> f32 {
     let denom = 1.0 + g * g - 2.0 * g * cos_theta;
@@ -120,41 +125,48 @@ fn voxel(gi: u32, ijk: vec3<i32>) -> f32 {
     let m = params.grids[gi];
     let key = ijk >> vec3<u32>(3u);
     let d = key - m.table_min;
+    var slot = EMPTY;
     if all(d >= vec3<i32>(0)) && all(d < m.table_dim) {
-        let slot = grid_data[m.table_base + u32((d.x * m.table_dim.y + d.y) * m.table_dim.z + d.z)];
-        if slot != EMPTY {
-            let l = ijk & vec3<i32>(7);
-            return bitcast<f32>(grid_data[m.leaf_base + slot * 512u + u32((l.x * 8 + l.y) * 8 + l.z)]);
+        slot = grid_data[m.table_base + u32((d.x * m.table_dim.y + d.y) * m.table_dim.z + d.z)];
+    }
+    var v = m.background;
+    if slot != EMPTY {
+        let l = ijk & vec3<i32>(7);
+        v = bitcast<f32>(grid_data[m.leaf_base + slot * 512u + u32((l.x * 8 + l.y) * 8 + l.z)]);
+    } else {
+        // The first tile containing the voxel, as `Grid::value`.
+        var found = false;
+        for (var k = 0u; k < m.tile_count; k++) {
+            let t = m.tile_base + 7u * k;
+            let lo = vec3<i32>(bitcast<i32>(grid_data[t]), bitcast<i32>(grid_data[t + 1u]), bitcast<i32>(grid_data[t + 2u]));
+            let hi = vec3<i32>(bitcast<i32>(grid_data[t + 3u]), bitcast<i32>(grid_data[t + 4u]), bitcast<i32>(grid_data[t + 5u]));
+            if !found && all(ijk >= lo) && all(ijk <= hi) {
+                v = bitcast<f32>(grid_data[t + 6u]);
+                found = true;
+            }
         }
     }
-    for (var k = 0u; k < m.tile_count; k++) {
-        let t = m.tile_base + 7u * k;
-        let lo = vec3<i32>(bitcast<i32>(grid_data[t]), bitcast<i32>(grid_data[t + 1u]), bitcast<i32>(grid_data[t + 2u]));
-        let hi = vec3<i32>(bitcast<i32>(grid_data[t + 3u]), bitcast<i32>(grid_data[t + 4u]), bitcast<i32>(grid_data[t + 5u]));
-        if all(ijk >= lo) && all(ijk <= hi) {
-            return bitcast<f32>(grid_data[t + 6u]);
-        }
-    }
-    return m.background;
+    return v;
 }
 
 // Extinction of grid `gi` at world point p: trilinear between voxel centres.
 fn grid_sigma_t(gi: u32, p: vec3<f32>) -> f32 {
     let m = params.grids[gi];
-    if !inside(p, m.bmin, m.bmax) {
-        return 0.0;
+    var sigma = 0.0;
+    if inside(p, m.bmin, m.bmax) {
+        let p4 = vec4<f32>(p, 1.0);
+        let q = vec3<f32>(dot(m.row0, p4), dot(m.row1, p4), dot(m.row2, p4));
+        let f = floor(q);
+        let t = q - f;
+        let i = vec3<i32>(f);
+        let x00 = mix(voxel(gi, i), voxel(gi, i + vec3<i32>(1, 0, 0)), t.x);
+        let x10 = mix(voxel(gi, i + vec3<i32>(0, 1, 0)), voxel(gi, i + vec3<i32>(1, 1, 0)), t.x);
+        let x01 = mix(voxel(gi, i + vec3<i32>(0, 0, 1)), voxel(gi, i + vec3<i32>(1, 0, 1)), t.x);
+        let x11 = mix(voxel(gi, i + vec3<i32>(0, 1, 1)), voxel(gi, i + vec3<i32>(1, 1, 1)), t.x);
+        let v = mix(mix(x00, x10, t.y), mix(x01, x11, t.y), t.z);
+        sigma = m.density_scale * max(v, 0.0);
     }
-    let p4 = vec4<f32>(p, 1.0);
-    let q = vec3<f32>(dot(m.row0, p4), dot(m.row1, p4), dot(m.row2, p4));
-    let f = floor(q);
-    let t = q - f;
-    let i = vec3<i32>(f);
-    let x00 = mix(voxel(gi, i), voxel(gi, i + vec3<i32>(1, 0, 0)), t.x);
-    let x10 = mix(voxel(gi, i + vec3<i32>(0, 1, 0)), voxel(gi, i + vec3<i32>(1, 1, 0)), t.x);
-    let x01 = mix(voxel(gi, i + vec3<i32>(0, 0, 1)), voxel(gi, i + vec3<i32>(1, 0, 1)), t.x);
-    let x11 = mix(voxel(gi, i + vec3<i32>(0, 1, 1)), voxel(gi, i + vec3<i32>(1, 1, 1)), t.x);
-    let v = mix(mix(x00, x10, t.y), mix(x01, x11, t.y), t.z);
-    return m.density_scale * max(v, 0.0);
+    return sigma;
 }
 
 // sum_i sigma_s,i(x) f_i(cos): the media's in-scattering at x, as `Media::in_scatter`.
@@ -187,10 +199,11 @@ fn grid_tr(seg: Segment, t: f32) -> f32 {
             hi = mid;
         }
     }
-    if lo == 0u {
-        return 1.0;
+    var tr = 1.0;
+    if lo > 0u {
+        tr = tr_steps[seg.tr_first + lo - 1u].y;
     }
-    return tr_steps[seg.tr_first + lo - 1u].y;
+    return tr;
 }
 
 fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
@@ -202,27 +215,28 @@ fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
     return exp(-tau) * grid_tr(seg, t);
 }
 
-fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec3<f32> {
+// The piece's eq. 2 term in xyz, and 1 in w when it crossed the segment within r.
+fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let r = params.radius;
     let w = seg.dir;
     let psi = p.dir;
     let b = dot(w, psi);
     let sin2 = 1.0 - b * b;
-    if sin2 < 1e-10 {
-        return vec3<f32>(0.0);
-    }
     let w0 = seg.origin - p.origin;
     let d = dot(w, w0);
     let e = dot(psi, w0);
-    let t = (b * e - d) / sin2;
-    let s = (e - b * d) / sin2;
+    let inv_sin2 = 1.0 / max(sin2, 1e-10);
+    let t = (b * e - d) * inv_sin2;
+    let s = (e - b * d) * inv_sin2;
     let dist = length(w0 + w * t - psi * s);
-    if dist >= r || t < seg.t0 || t >= seg.t1 || s < p.s0 || s >= p.s1 {
-        return vec3<f32>(0.0);
+    let ok = sin2 >= 1e-10 && dist < r && t >= seg.t0 && t < seg.t1 && s >= p.s0 && s < p.s1;
+    var out = vec4<f32>(0.0);
+    if ok {
+        let x = seg.origin + w * t;
+        let f = in_scatter(x, dot(psi, -w));
+        out = vec4<f32>(f * p.power * ((0.5 / r) * camera_tr(seg, inv, t) / sqrt(sin2)), 1.0);
     }
-    let x = seg.origin + w * t;
-    let f = in_scatter(x, dot(psi, -w));
-    return f * p.power * ((0.5 / r) * camera_tr(seg, inv, t) / sqrt(sin2));
+    return out;
 }
 
 fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
@@ -233,57 +247,53 @@ fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
     return near <= far;
 }
 
-fn segment_radiance(seg: Segment) -> vec3<f32> {
+// Stackless walk of the pre-ordered BVH, one node or one piece per iteration (a flat loop:
+// nested divergent loops were miscompiled by Mesa's gallivm): a hit inner node continues
+// with its first child (the next node); a missed node or a finished leaf jumps past its
+// subtree.
+fn segment_radiance(seg: Segment) -> vec4<f32> {
     let inv = safe_inv(seg.dir);
-    var sum = vec3<f32>(0.0);
-    if arrayLength(&nodes) == 0u || !hits(nodes[0], seg.origin, inv, seg.t0, seg.t1) {
-        return sum;
-    }
-    var stack: array<u32, STACK>;
-    var sp = 0u;
-    var node = 0u;
-    loop {
+    var sum = vec4<f32>(0.0);
+    var node = select(EMPTY, 0u, arrayLength(&nodes) > 0u);
+    var k = 0u;
+    while node != EMPTY {
         let n = nodes[node];
-        if n.count > 0u {
-            for (var k = 0u; k < n.count; k++) {
-                sum += piece_radiance(seg, inv, pieces[n.first + k]);
-            }
+        if k == 0u && !hits(n, seg.origin, inv, seg.t0, seg.t1) {
+            node = n.skip;
+        } else if n.count == 0u {
+            node = node + 1u;
         } else {
-            let a = n.first;
-            let hit_a = hits(nodes[a], seg.origin, inv, seg.t0, seg.t1);
-            let hit_b = hits(nodes[a + 1u], seg.origin, inv, seg.t0, seg.t1);
-            if hit_a && hit_b && sp < STACK {
-                stack[sp] = a + 1u;
-                sp++;
-                node = a;
-                continue;
-            } else if hit_a {
-                node = a;
-                continue;
-            } else if hit_b {
-                node = a + 1u;
-                continue;
+            sum += piece_radiance(seg, inv, pieces[n.first + k]);
+            k = k + 1u;
+            if k == n.count {
+                k = 0u;
+                node = n.skip;
             }
         }
-        if sp == 0u {
-            break;
-        }
-        sp--;
-        node = stack[sp];
     }
     return sum;
 }
 
 @compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+fn segment_main(@builtin(global_invocation_id) id: vec3<u32>) {
     if id.x >= chunk.count {
         return;
     }
-    let pixel = chunk.first_pixel + id.x;
-    var l = vec3<f32>(0.0);
-    for (var i = pixel_first[pixel]; i < pixel_first[pixel + 1u]; i++) {
-        let seg = segments[i];
-        l += seg.beta * segment_radiance(seg);
+    let i = chunk.first + id.x;
+    let seg = segments[i];
+    let r = segment_radiance(seg);
+    seg_out[i] = vec4<f32>(seg.beta * r.xyz, r.w);
+}
+
+@compute @workgroup_size(64)
+fn pixel_main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= chunk.count {
+        return;
     }
-    accum[pixel] += vec4<f32>(l, 0.0);
+    let pixel = chunk.first + id.x;
+    var l = vec4<f32>(0.0);
+    for (var i = pixel_first[pixel]; i < pixel_first[pixel + 1u]; i++) {
+        l += seg_out[i];
+    }
+    accum[pixel] += l;
 }

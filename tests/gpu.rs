@@ -31,9 +31,10 @@ pub fn gpu_or_skip(test: &str) -> Option<Gpu> {
 }
 
 struct Parity {
-    /// Largest |gpu - cpu| / max(cpu, floor) over pixels and channels, floor = 1e-3 of
-    /// the image's largest value.
-    max_rel: f64,
+    /// Pixels where some channel has |gpu - cpu| > 1e-3 max(cpu, 1e-3 of the image's
+    /// largest value): a crossing at distance ~r or at a beam piece's end can be decided
+    /// differently by float32 rounding on the two devices, which moves one whole term.
+    off_pixels: usize,
     /// sum |gpu - cpu| / sum |cpu|.
     rel_l1: f64,
     lit_pixels: usize,
@@ -49,7 +50,7 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
     let r = Renderer::new(&file.scene, s).expect("renderer");
     let mut est = GpuBeams::new(g, r.media(), r.camera().origin(), size * size).expect("gpu");
     let mut out = Parity {
-        max_rel: 0.0,
+        off_pixels: 0,
         rel_l1: 0.0,
         lit_pixels: 0,
         evaluations: 0,
@@ -72,12 +73,14 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
         let top = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max) as f64;
         let floor = 1e-3 * top;
         for (c, g) in cpu.iter().zip(&acc) {
+            let mut off = false;
             for k in 0..3 {
                 let (a, b) = (c[k] as f64, g[k] as f64);
                 diff += (a - b).abs();
                 total += a.abs();
-                out.max_rel = out.max_rel.max((a - b).abs() / a.abs().max(floor));
+                off |= (a - b).abs() > 1e-3 * a.abs().max(floor);
             }
+            out.off_pixels += usize::from(off);
             out.lit_pixels += usize::from(c.max_element() > 0.0);
         }
         out.evaluations += evals;
@@ -85,8 +88,8 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
     }
     out.rel_l1 = diff / total;
     eprintln!(
-        "{scene}: max rel {:.2e}, rel_l1 {:.2e}, {} lit pixels, {} evaluations, {} secondary segments",
-        out.max_rel, out.rel_l1, out.lit_pixels, out.evaluations, out.secondary
+        "{scene}: rel_l1 {:.2e}, {} of {} lit pixels off by > 1e-3, {} evaluations, {} secondary segments",
+        out.rel_l1, out.off_pixels, out.lit_pixels, out.evaluations, out.secondary
     );
     Some(out)
 }
@@ -96,11 +99,11 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
 fn gpu_matches_cpu_on_smoke_grid() {
     let scene = "scenes/conformance/smoke-grid/scene.toml";
     for tr in [TrMode::Ratio, TrMode::Random] {
-        let Some(p) = parity(scene, 64, 4000, tr, &[1, 7]) else {
+        let Some(p) = parity(scene, 96, 20_000, tr, &[1, 7]) else {
             return;
         };
-        assert!(p.evaluations > 20_000 && p.lit_pixels > 1000);
-        assert!(p.max_rel < 1e-3, "{tr:?}: max relative difference {}", p.max_rel);
+        assert!(p.evaluations > 100_000 && p.lit_pixels > 3000);
+        assert!(p.off_pixels * 1000 <= p.lit_pixels, "{tr:?}: {} pixels off", p.off_pixels);
         assert!(p.rel_l1 < 1e-5, "{tr:?}: rel_l1 {}", p.rel_l1);
     }
 }
@@ -109,11 +112,11 @@ fn gpu_matches_cpu_on_smoke_grid() {
 #[test]
 fn gpu_matches_cpu_on_glass_caustic() {
     let scene = "scenes/conformance/glass-caustic/scene.toml";
-    let Some(p) = parity(scene, 64, 4000, TrMode::Ratio, &[1, 3]) else {
+    let Some(p) = parity(scene, 96, 20_000, TrMode::Ratio, &[1, 3]) else {
         return;
     };
-    assert!(p.secondary > 100 && p.evaluations > 10_000);
-    assert!(p.max_rel < 1e-3, "max relative difference {}", p.max_rel);
+    assert!(p.secondary > 1000 && p.evaluations > 500_000);
+    assert!(p.off_pixels * 1000 <= p.lit_pixels, "{} pixels off", p.off_pixels);
     assert!(p.rel_l1 < 1e-5, "rel_l1 {}", p.rel_l1);
 }
 

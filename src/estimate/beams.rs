@@ -35,15 +35,19 @@ pub struct BeamPiece {
     pub beam: u32,
 }
 
-/// A BVH node as the GPU reads it: an inner node (count 0) has its children at `first`
-/// and `first + 1`; a leaf holds pieces `first .. first + count`.
+/// A BVH node as the GPU walks it, without a stack: nodes are in depth-first pre-order, so
+/// an inner node's first child is the next node, and `skip` is the node after its whole
+/// subtree (`u32::MAX` past the end). A leaf (count > 0) holds pieces
+/// `first .. first + count`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct BvhNode {
     pub min: [f32; 3],
-    pub count: u32,
+    pub skip: u32,
     pub max: [f32; 3],
     pub first: u32,
+    pub count: u32,
+    pub _pad: [u32; 3],
 }
 
 pub struct BeamMap {
@@ -51,6 +55,26 @@ pub struct BeamMap {
     pieces: Vec<BeamPiece>,
     bvh: Option<Bvh2>,
     radius: f32,
+}
+
+/// Appends obvhs node `n`'s subtree in pre-order; recursion depth is the tree's depth.
+fn preorder(bvh: &Bvh2, n: u32, out: &mut Vec<BvhNode>) {
+    let node = &bvh.nodes[n as usize];
+    let me = out.len();
+    let leaf = node.prim_count > 0;
+    out.push(BvhNode {
+        min: Vec3::from(node.aabb.min).into(),
+        skip: 0,
+        max: Vec3::from(node.aabb.max).into(),
+        first: if leaf { node.first_index } else { 0 },
+        count: node.prim_count,
+        _pad: [0; 3],
+    });
+    if !leaf {
+        preorder(bvh, node.first_index, out);
+        preorder(bvh, node.first_index + 1, out);
+    }
+    out[me].skip = out.len() as u32;
 }
 
 /// The normalized 1D kernel: integrates to 1 over the distance d in (-r, r).
@@ -147,15 +171,15 @@ impl BeamMap {
         let Some(bvh) = &self.bvh else {
             return Vec::new();
         };
-        bvh.nodes
-            .iter()
-            .map(|n| BvhNode {
-                min: Vec3::from(n.aabb.min).into(),
-                count: n.prim_count,
-                max: Vec3::from(n.aabb.max).into(),
-                first: n.first_index,
-            })
-            .collect()
+        let mut out = Vec::with_capacity(bvh.nodes.len());
+        preorder(bvh, 0, &mut out);
+        let end = out.len() as u32;
+        for n in &mut out {
+            if n.skip == end {
+                n.skip = u32::MAX;
+            }
+        }
+        out
     }
 
     /// Sum of eq. 2 over the beams near the camera segment [t0, t1] of `ray`.

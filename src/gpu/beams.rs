@@ -1,15 +1,18 @@
-//! The beam estimate of eq. 2 on the GPU: one compute kernel, one invocation per pixel,
-//! walking the pass's beam BVH for each of the pixel's camera segments (primary and after
-//! specular bounces) and adding to a float32 accumulator that stays on the GPU until a
-//! checkpoint reads it back.
+//! The beam estimate of eq. 2 on the GPU: a compute kernel with one invocation per camera
+//! segment (primary and after specular bounces) walks the pass's beam BVH; a second one,
+//! per pixel, adds its segments' results in order to a float32 accumulator that stays on
+//! the GPU until a checkpoint reads it back. (A single per-pixel kernel looping over its
+//! segments' traversals was miscompiled by Mesa's lavapipe and llvmpipe alike: it lost
+//! crossings when a pixel had several segments, though each segment alone was right.)
 //!
-//! Why a BVH gather rather than the original PPB's rasterized beam quads for primary rays:
-//! one kernel then serves every camera segment, with the same kernel, radius, occlusion and
-//! transmittance code as the CPU's BVH query, the sum per pixel is deterministic (no
-//! blending order), and it needs no float32-blendable render target (wgpu's GL backend has
-//! none). Measured with `ppb bench-gpu` (README): on lavapipe the gather runs at the speed
-//! of the CPU splat, and the splat's advantage on a CPU (it visits only true crossings)
-//! does not carry over to rasterization, which shades every covered fragment too.
+//! Why one BVH gather kernel rather than the original PPB's rasterized beam quads for
+//! primary rays: one kernel serves every camera segment (primary and after glass) with the
+//! same code as the CPU's BVH query, per-pixel sums are deterministic (no blending order),
+//! and it needs no float32-blendable render target (wgpu's GL backend has none). What we
+//! measured (`ppb bench-gpu`, README): on lavapipe, the only adapter here, this kernel is
+//! 30-50x slower than the CPU splat (lavapipe runs the divergent traversal on SIMD lanes of
+//! the same two cores), which is why `--device auto` skips software adapters. Rasterized
+//! quads were not built, and no hardware GPU was available to compare the two on.
 //!
 //! Pipelining: [`GpuBeams::submit`] uploads a pass and returns at once; the caller traces
 //! the next pass on the CPU while the GPU works, and the next `submit` (or a checkpoint)
@@ -21,18 +24,15 @@ use wgpu::util::DeviceExt;
 use super::layout::{media_params, Chunk, Params, Segments};
 use super::Gpu;
 use crate::error::{Error, Result};
-use crate::estimate::beams::BvhNode;
 use crate::media::Media;
 use crate::render::TracedPass;
 use glam::Vec3;
 
 pub const SHADER: &str = include_str!("../../shaders/beam_estimate.wgsl");
 
-/// Pixels per dispatch: long single dispatches can lose the device.
-pub const CHUNK_PIXELS: u32 = 65536;
+/// Segments or pixels per dispatch: long single dispatches can lose the device.
+pub const CHUNK: u32 = 65536;
 const WORKGROUP: u32 = 64;
-/// The shader's traversal stack.
-const STACK: usize = 64;
 
 /// When the GPU ran one pass's estimate, and how long the CPU waited for it.
 #[derive(Clone, Copy, Debug)]
@@ -64,7 +64,16 @@ impl Grow {
     }
 
     fn write(&mut self, gpu: &Gpu, data: &[u8]) -> Result<()> {
-        let need = (data.len() as u64).max(16);
+        self.reserve(gpu, data.len() as u64)?;
+        if !data.is_empty() {
+            gpu.queue.write_buffer(&self.buf, 0, data);
+        }
+        Ok(())
+    }
+
+    /// Makes room for `bytes` (contents undefined).
+    fn reserve(&mut self, gpu: &Gpu, bytes: u64) -> Result<()> {
+        let need = bytes.max(16);
         if need > gpu.limits.max_storage_buffer_binding_size as u64 {
             return Err(Error::Gpu(format!(
                 "{} needs {need} bytes, over the adapter's storage binding limit of {} \
@@ -74,9 +83,6 @@ impl Grow {
         }
         if need > self.buf.size() {
             self.buf = storage(&gpu.device, self.label, need.next_power_of_two());
-        }
-        if !data.is_empty() {
-            gpu.queue.write_buffer(&self.buf, 0, data);
         }
         Ok(())
     }
@@ -93,7 +99,8 @@ fn storage(dev: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
 
 pub struct GpuBeams {
     gpu: Gpu,
-    pipeline: wgpu::ComputePipeline,
+    per_segment: wgpu::ComputePipeline,
+    per_pixel: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     params: Params,
     params_buf: wgpu::Buffer,
@@ -103,6 +110,7 @@ pub struct GpuBeams {
     accum: wgpu::Buffer,
     segments: Grow,
     pixel_first: Grow,
+    seg_out: Grow,
     tr_steps: Grow,
     nodes: Grow,
     pieces: Grow,
@@ -129,14 +137,17 @@ impl GpuBeams {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("beam estimate"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        let pipeline = |entry: &str| {
+            dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let (per_segment, per_pixel) = (pipeline("segment_main"), pipeline("pixel_main"));
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("beam_estimate.wgsl: {e}")));
         }
@@ -168,25 +179,7 @@ impl GpuBeams {
         });
         let chunk_stride = (gpu.limits.min_uniform_buffer_offset_alignment as u64)
             .max(std::mem::size_of::<Chunk>() as u64);
-        let chunks = pixels.div_ceil(CHUNK_PIXELS).max(1);
-        let chunk_data: Vec<u8> = (0..chunks)
-            .flat_map(|k| {
-                let first = k * CHUNK_PIXELS;
-                let c = Chunk {
-                    first_pixel: first,
-                    count: CHUNK_PIXELS.min(pixels - first),
-                    _pad: [0; 2],
-                };
-                let mut bytes = bytemuck::bytes_of(&c).to_vec();
-                bytes.resize(chunk_stride as usize, 0);
-                bytes
-            })
-            .collect();
-        let chunk_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("chunks"),
-            contents: &chunk_data,
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
+        let chunk_buf = uniform_chunks(dev, 2 * chunk_stride);
         let accum = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("accum"),
             size: pixels as u64 * 16,
@@ -198,11 +191,13 @@ impl GpuBeams {
         Ok(GpuBeams {
             segments: Grow::new(dev, "segments"),
             pixel_first: Grow::new(dev, "pixel ranges"),
+            seg_out: Grow::new(dev, "segment results"),
             tr_steps: Grow::new(dev, "transmittance steps"),
             nodes: Grow::new(dev, "beam BVH"),
             pieces: Grow::new(dev, "beam pieces"),
             gpu,
-            pipeline,
+            per_segment,
+            per_pixel,
             layout,
             params,
             params_buf,
@@ -231,7 +226,6 @@ impl GpuBeams {
             _ => return Ok(prev),
         };
         let nodes = map.nodes();
-        check_depth(&nodes)?;
         let segs = Segments::build(self.origin, &t.camera, media);
         if segs.pixel_first.len() != self.pixels as usize + 1 {
             return Err(Error::Gpu("pass size differs from the estimator's".into()));
@@ -249,17 +243,38 @@ impl GpuBeams {
         self.nodes.write(&self.gpu, bytemuck::cast_slice(&nodes))?;
         self.pieces
             .write(&self.gpu, bytemuck::cast_slice(map.pieces()))?;
+        let n_segs = segs.segments.len() as u32;
+        self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
+        let seg_chunks = chunks(n_segs);
+        let pixel_chunks = chunks(self.pixels);
+        let table: Vec<u8> = seg_chunks
+            .iter()
+            .chain(&pixel_chunks)
+            .flat_map(|c| {
+                let mut b = bytemuck::bytes_of(c).to_vec();
+                b.resize(self.chunk_stride as usize, 0);
+                b
+            })
+            .collect();
+        if table.len() as u64 > self.chunk_buf.size() {
+            let size = (table.len() as u64).next_power_of_two();
+            self.chunk_buf = uniform_chunks(&self.gpu.device, size);
+        }
+        self.gpu.queue.write_buffer(&self.chunk_buf, 0, &table);
         let bind = self.bind_group();
         let mut enc = self
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        for k in 0..self.pixels.div_ceil(CHUNK_PIXELS) {
-            let count = CHUNK_PIXELS.min(self.pixels - k * CHUNK_PIXELS);
+        let passes = seg_chunks
+            .iter()
+            .map(|c| (&self.per_segment, c))
+            .chain(pixel_chunks.iter().map(|c| (&self.per_pixel, c)));
+        for (k, (pipeline, c)) in passes.enumerate() {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &bind, &[(k as u64 * self.chunk_stride) as u32]);
-            pass.dispatch_workgroups(count.div_ceil(WORKGROUP), 1, 1);
+            pass.dispatch_workgroups(c.count.div_ceil(WORKGROUP), 1, 1);
             self.dispatches += 1;
         }
         let index = self.gpu.queue.submit([enc.finish()]);
@@ -378,6 +393,7 @@ impl GpuBeams {
             whole(&self.pieces.buf),
             whole(&self.grid_buf),
             whole(&self.accum),
+            whole(&self.seg_out.buf),
         ];
         let entries: Vec<wgpu::BindGroupEntry> = resources
             .into_iter()
@@ -397,7 +413,27 @@ impl GpuBeams {
     }
 }
 
-/// Bindings 0-8 of `beam_estimate.wgsl`; the chunk uniform (1) takes a dynamic offset.
+/// `count` items in dispatches of at most [`CHUNK`].
+fn chunks(count: u32) -> Vec<Chunk> {
+    (0..count.div_ceil(CHUNK))
+        .map(|k| Chunk {
+            first: k * CHUNK,
+            count: CHUNK.min(count - k * CHUNK),
+            _pad: [0; 2],
+        })
+        .collect()
+}
+
+fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
+    dev.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("chunks"),
+        size,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// Bindings 0-9 of `beam_estimate.wgsl`; the chunk uniform (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| {
         wgpu::BindGroupLayoutEntry {
@@ -422,32 +458,10 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         entry(6, read, false),
         entry(7, read, false),
         entry(8, wgpu::BufferBindingType::Storage { read_only: false }, false),
+        entry(9, wgpu::BufferBindingType::Storage { read_only: false }, false),
     ];
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),
         entries: &entries,
     })
-}
-
-/// The shader's traversal stack holds [`STACK`] nodes: a deeper tree would lose subtrees.
-fn check_depth(nodes: &[BvhNode]) -> Result<()> {
-    if nodes.is_empty() {
-        return Ok(());
-    }
-    let mut deepest = 0;
-    let mut todo = vec![(0u32, 1usize)];
-    while let Some((n, d)) = todo.pop() {
-        deepest = deepest.max(d);
-        let node = nodes[n as usize];
-        if node.count == 0 {
-            todo.push((node.first, d + 1));
-            todo.push((node.first + 1, d + 1));
-        }
-    }
-    if deepest > STACK {
-        return Err(Error::Gpu(format!(
-            "beam BVH depth {deepest} exceeds the shader's stack of {STACK}"
-        )));
-    }
-    Ok(())
 }

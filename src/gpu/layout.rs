@@ -7,7 +7,9 @@ use bytemuck::{Pod, Zeroable};
 use crate::error::{Error, Result};
 use crate::media::grid::Grid;
 use crate::media::{GridMedium, Media};
-use crate::transport::camera::{CameraPass, Primary, Secondary};
+use crate::geometry::Ray;
+use crate::media::homogeneous::ray_box;
+use crate::transport::camera::CameraPass;
 use crate::transport::transmittance::SegmentTr;
 use glam::Vec3;
 
@@ -58,12 +60,12 @@ pub struct Params {
     pub grids: [GridMeta; MAX_GRIDS],
 }
 
-/// The pixels one dispatch covers (dispatches are split so none runs long enough to
-/// lose the device).
+/// The segments or pixels one dispatch covers (dispatches are split so none runs long
+/// enough to lose the device).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Chunk {
-    pub first_pixel: u32,
+    pub first: u32,
     pub count: u32,
     pub _pad: [u32; 2],
 }
@@ -176,12 +178,16 @@ pub struct Segments {
     pub tr_steps: Vec<[f32; 2]>,
 }
 
-/// Segments with an unbounded end get this t1 (WGSL has no infinity literal).
-const FAR: f32 = f32::MAX;
 
 impl Segments {
     pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> Segments {
-        let bounds = media.bounds();
+        let Some(bounds) = media.bounds() else {
+            return Segments {
+                segments: Vec::new(),
+                pixel_first: vec![0; pass.primaries.len() + 1],
+                tr_steps: Vec::new(),
+            };
+        };
         let mut out = Segments {
             segments: Vec::with_capacity(pass.primaries.len()),
             pixel_first: Vec::with_capacity(pass.primaries.len() + 1),
@@ -190,40 +196,34 @@ impl Segments {
         let mut next = pass.secondary.iter().peekable();
         for (pixel, p) in pass.primaries.iter().enumerate() {
             out.pixel_first.push(out.segments.len() as u32);
-            if touches(origin, p, bounds) {
-                out.push(origin, p.dir, p.t_surf, Vec3::ONE, &p.tr);
-            }
+            out.push(&bounds, Ray::new(origin, p.dir), p.t_surf, Vec3::ONE, &p.tr);
             while let Some(s) = next.next_if(|s| s.pixel as usize == pixel) {
-                out.push_secondary(s);
+                out.push(&bounds, s.ray, s.t_surf, s.beta, &s.tr);
             }
         }
         out.pixel_first.push(out.segments.len() as u32);
         out
     }
 
-    fn push_secondary(&mut self, s: &Secondary) {
-        self.push(s.ray.o, s.ray.d, s.t_surf, s.beta, &s.tr);
-    }
-
-    fn push(&mut self, o: Vec3, d: Vec3, t_surf: f32, beta: Vec3, tr: &SegmentTr) {
+    /// Adds the segment [0, t_surf) of `ray`, ended where it leaves the media's bounds
+    /// (beyond, sigma_s and so every term is 0; an infinite end also upsets some shader
+    /// compilers: lavapipe dropped crossings on segments ending at f32::MAX). Segments
+    /// that miss the bounds carry no beam radiance and are left out.
+    fn push(&mut self, b: &[Vec3; 2], ray: Ray, t_surf: f32, beta: Vec3, tr: &SegmentTr) {
+        let Some((_, t1)) = ray_box(&ray, b, 0.0, t_surf) else {
+            return;
+        };
         let tr_first = self.tr_steps.len() as u32;
         tr.steps(&mut self.tr_steps);
         self.segments.push(Segment {
-            origin: o.into(),
+            origin: ray.o.into(),
             t0: 0.0,
-            dir: d.into(),
-            t1: if t_surf.is_finite() { t_surf } else { FAR },
+            dir: ray.d.into(),
+            t1,
             beta: beta.into(),
             tr_first,
             tr_count: self.tr_steps.len() as u32 - tr_first,
             _pad: [0; 3],
         });
     }
-}
-
-/// Whether a primary segment can meet the media at all (others carry no beam radiance).
-fn touches(origin: Vec3, p: &Primary, bounds: Option<[Vec3; 2]>) -> bool {
-    let Some(b) = bounds else { return false };
-    let ray = crate::geometry::Ray::new(origin, p.dir);
-    crate::media::homogeneous::ray_box(&ray, &b, 0.0, p.t_surf).is_some()
 }

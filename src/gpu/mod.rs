@@ -191,9 +191,10 @@ mod tests {
             "BvhNode",
             size_of::<BvhNode>(),
             &[
-                ("count", offset_of!(BvhNode, count)),
+                ("skip", offset_of!(BvhNode, skip)),
                 ("max", offset_of!(BvhNode, max)),
                 ("first", offset_of!(BvhNode, first)),
+                ("count", offset_of!(BvhNode, count)),
             ],
         );
         check(
