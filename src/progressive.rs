@@ -25,6 +25,9 @@ pub struct GpuStats {
     pub wait_seconds: f64,
     /// Building and uploading segments and the beam BVH.
     pub upload_seconds: f64,
+    /// Beam-segment crossings within the radius, counted by the GPU (as of the last
+    /// read-back).
+    pub beam_evaluations: u64,
 }
 
 impl GpuStats {
@@ -113,6 +116,7 @@ impl Progressive {
             Some(g) => {
                 let (acc, timing) = g.read()?;
                 self.gpu_stats.record(timing, None);
+                self.gpu_stats.beam_evaluations = acc.iter().map(|a| a[3] as f64).sum::<f64>() as u64;
                 self.film.image_plus(&acc)
             }
         };
