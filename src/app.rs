@@ -1,4 +1,8 @@
 //! Runs the stages for each subcommand: progress bar, checkpoints, outputs, stats.
+mod watch;
+mod window;
+
+pub use watch::{watch, WatchArgs};
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -9,6 +13,7 @@ use std::time::{Duration, Instant};
 use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::film::Film;
 use ppb::majorant::{cache, Octree};
+use ppb::watch::octrees;
 use ppb::output::{self, Image};
 use ppb::render::{Renderer, Timings};
 use ppb::scene::toml as scene_toml;
@@ -122,37 +127,10 @@ fn prepare_octrees(
 ) -> Result<Vec<Octree>> {
     let mut trees = Vec::with_capacity(scene.grid_media.len());
     for (i, g) in scene.grid_media.iter().enumerate() {
-        let (status, tree) = cache::load(dir, g, depth);
-        let tree = match tree {
-            Some(t) => {
-                if !quiet {
-                    eprintln!("medium {i} ({}): octree loaded from cache", g.source);
-                }
-                t
-            }
-            None => {
-                let start = Instant::now();
-                let t = Octree::build(g, depth);
-                let stored = cache::store(dir, g, depth, &t);
-                if !quiet {
-                    let why = match &status {
-                        cache::Status::Invalid(w) => format!(" (cache invalid: {w})"),
-                        _ => String::new(),
-                    };
-                    let where_ = match &stored {
-                        Ok(p) => format!("stored in {}", p.display()),
-                        Err(e) => format!("not stored: {e}"),
-                    };
-                    eprintln!(
-                        "medium {i} ({}): octree built in {:.2} s, {} nodes{why}; {where_}",
-                        g.source,
-                        start.elapsed().as_secs_f64(),
-                        t.nodes.len()
-                    );
-                }
-                t
-            }
-        };
+        let (tree, origin) = octrees::load_or_build(dir, g, depth);
+        if !quiet {
+            eprintln!("{}", octrees::describe(i, g, &origin));
+        }
         trees.push(tree);
     }
     Ok(trees)
@@ -405,6 +383,18 @@ fn write_outputs(
     seconds: f64,
     scene: &Path,
 ) -> Result<()> {
+    write_outputs_meta(out, film, s, seconds, scene, &[])
+}
+
+/// [`write_outputs`] with `extra` header attributes (e.g. `ppb watch`'s reload number).
+fn write_outputs_meta(
+    out: &Path,
+    film: &Film,
+    s: &ppb::settings::RenderSettings,
+    seconds: f64,
+    scene: &Path,
+    extra: &[(String, String)],
+) -> Result<()> {
     let img = Image {
         width: film.width as usize,
         height: film.height as usize,
@@ -429,6 +419,7 @@ fn write_outputs(
             format!("{:?}", s.photon_radius),
         ),
     ];
+    let meta: Vec<(String, String)> = meta.into_iter().chain(extra.iter().cloned()).collect();
     output::write_exr(out, &img, &meta)?;
     output::write_png(&out.with_extension("png"), &img, s.exposure)?;
     Ok(())

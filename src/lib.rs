@@ -18,3 +18,4 @@ pub mod sampling;
 pub mod scene;
 pub mod settings;
 pub mod transport;
+pub mod watch;
