@@ -176,7 +176,6 @@ fn light_edit_broken_toml_and_fix() {
     // up and the last good (bright) output stays readable and is not replaced.
     std::fs::write(&scene, "[render]\nwidth = 32\n[[light]\ntype = \n").unwrap();
     w.wait("the syntax error", |w| w.count("error: ") >= 1);
-    let err = w.log();
     // A save caught mid-write may first report another error; the syntax one must come.
     w.wait("the line of the syntax error", |w| w.count("line 3") >= 1);
     let err = w.log();
