@@ -9,11 +9,15 @@ rewritten: reload N" line is printed right after the EXR and PNG were renamed in
 Edits: the light (intensity or irradiance scaled), and for grid scenes the VDB (swapped for
 another density grid: the first swap builds an octree, swapping back finds it in the cache).
 
+Each edit waits a random 2-4 s of refining first, so it lands at a random point of the pass
+in flight (the worker applies reloads between passes).
+
 Usage: tools/watch_latency.py [--ppb target/release/ppb] [--scene fog-box] [--repeats 5]
-                              [--beams N] [--threads N]
+                              [--beams N] [--threads N] [--settle MIN MAX]
 """
 import argparse
 import os
+import random
 import re
 import shutil
 import statistics
@@ -82,8 +86,10 @@ def measure(watch, edits, settle):
     """Runs (name, action) edits; returns {name: [seconds]}."""
     out = {}
     reload = 1
+    rng = random.Random(1)
     for name, action in edits:
-        time.sleep(settle)  # refine a while, so an edit lands while a pass is in flight
+        # Refine a random while, so edits land at random points of the pass in flight.
+        time.sleep(rng.uniform(*settle))
         t0 = action()
         reload += 1
         t1, line = watch.wait_for(rf"preview .* reload {reload},", after=t0)
@@ -99,7 +105,8 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--beams", type=int, help="light paths per pass (default: the scene's)")
     ap.add_argument("--threads", type=int)
-    ap.add_argument("--settle", type=float, default=1.5, help="seconds of refining before each edit")
+    ap.add_argument("--settle", type=float, nargs=2, default=[2.0, 4.0], metavar=("MIN", "MAX"),
+                    help="seconds of refining before each edit, drawn uniformly")
     a = ap.parse_args()
 
     tmp = tempfile.mkdtemp(prefix="ppb-latency-")

@@ -40,6 +40,10 @@ pub struct WatchArgs {
     /// Passes per (re)start, overriding [render].passes; 0 refines forever.
     #[arg(long)]
     pub passes: Option<u32>,
+    /// Trace all light paths from the first pass after a reload (default: passes 1, 2 and 3
+    /// use 1/8, 1/4 and 1/2 of them, so the preview restarts quickly).
+    #[arg(long)]
+    pub no_ramp: bool,
     /// Rewrite the EXR/PNG every K passes ("8") or S seconds ("2s"); the first pass after
     /// every reload and the last pass are always written.
     #[arg(long, value_parser = parse_checkpoint, default_value = "1s")]
@@ -165,6 +169,19 @@ struct Current {
     file: SceneFile,
     settings: RenderSettings,
     renderer: Renderer,
+    /// The scene's octrees, for the ramp renderers.
+    trees: Vec<ppb::majorant::Octree>,
+    /// The renderer of the current ramp pass and its light paths per pass.
+    ramp: Option<(usize, Renderer)>,
+}
+
+/// Light paths of pass `i` after a (re)load: 1/8, 1/4, 1/2 of the scene's, then all. The
+/// first preview then comes after a short pass, and an edit made soon after another waits
+/// only for a short pass in flight. Every pass is an unbiased estimate whatever its path
+/// count, so the progressive mean stays consistent.
+fn ramp_beams(full: usize, i: u32) -> usize {
+    let shift = 3u32.saturating_sub(i.saturating_sub(1));
+    (full >> shift).max(1)
 }
 
 /// The render thread: owns the scene, the accumulation, the watcher and the status line.
@@ -190,6 +207,10 @@ struct Worker {
     wake: Option<Box<dyn Fn() + Send>>,
     status: Status,
     snapshots: u32,
+    /// Timings behind the latest preview line: seen-to-renderer, last pass.
+    reload_seconds: f64,
+    pass_seconds: f64,
+    pass_beams: usize,
 }
 
 /// The one-line terminal status: redrawn in place on a terminal, absent otherwise.
@@ -260,6 +281,9 @@ impl Worker {
             wake,
             status,
             snapshots: 0,
+            reload_seconds: 0.0,
+            pass_seconds: 0.0,
+            pass_beams: 0,
         }
     }
 
@@ -412,7 +436,7 @@ impl Worker {
         for l in &tree_lines {
             self.status.log(l);
         }
-        let renderer = match Renderer::with_octrees(&file.scene, settings.clone(), trees) {
+        let renderer = match Renderer::with_octrees(&file.scene, settings.clone(), trees.clone()) {
             Ok(r) => r,
             Err(e) => return self.error(e.to_string()),
         };
@@ -442,7 +466,10 @@ impl Worker {
             file,
             settings,
             renderer,
+            trees,
+            ramp: None,
         });
+        self.reload_seconds = self.changed_at.elapsed().as_secs_f64();
         self.watched = deps::files(&self.current.as_ref().expect("just set").file);
         self.update_watches();
         self.gen_start = Instant::now();
@@ -476,7 +503,22 @@ impl Worker {
             return;
         };
         let i = self.film.passes() + 1;
-        let result = cur.renderer.pass(i);
+        let full = cur.settings.beams_per_pass;
+        let beams = if self.args.no_ramp {
+            full
+        } else {
+            ramp_beams(full, i)
+        };
+        let start = Instant::now();
+        let result = match self.ramp_renderer(beams) {
+            Some(r) => r.pass(i),
+            None => match &self.current {
+                Some(cur) => cur.renderer.pass(i),
+                None => return,
+            },
+        };
+        self.pass_seconds = start.elapsed().as_secs_f64();
+        self.pass_beams = beams;
         self.film.add_pass(&result.image);
         let due = match self.args.checkpoint {
             Checkpoint::Passes(k) => i - self.written_at_pass >= k,
@@ -493,6 +535,25 @@ impl Worker {
         }
         self.publish();
         self.show_status();
+    }
+
+    /// The renderer for a ramp pass with `beams` light paths (None: the full renderer).
+    fn ramp_renderer(&mut self, beams: usize) -> Option<&Renderer> {
+        let cur = self.current.as_mut()?;
+        if beams == cur.settings.beams_per_pass {
+            cur.ramp = None;
+            return None;
+        }
+        if cur.ramp.as_ref().map(|r| r.0) != Some(beams) {
+            let settings = RenderSettings {
+                beams_per_pass: beams,
+                ..cur.settings.clone()
+            };
+            cur.ramp = Renderer::with_octrees(&cur.file.scene, settings, cur.trees.clone())
+                .ok()
+                .map(|r| (beams, r));
+        }
+        cur.ramp.as_ref().map(|r| &r.1)
     }
 
     fn seconds(&self) -> f64 {
@@ -523,10 +584,14 @@ impl Worker {
         }
         if self.written_at_pass == 0 && why == "first pass" {
             self.status.log(&format!(
-                "preview {} rewritten: reload {}, pass 1, {:.3} s after the change was seen",
+                "preview {} rewritten: reload {}, pass 1, {:.3} s after the change was seen \
+                 (reload {:.3} s, pass {:.3} s with {} light paths)",
                 self.out.display(),
                 self.generation,
-                self.changed_at.elapsed().as_secs_f64()
+                self.changed_at.elapsed().as_secs_f64(),
+                self.reload_seconds,
+                self.pass_seconds,
+                self.pass_beams,
             ));
         }
         self.written_at_pass = self.film.passes();
@@ -643,6 +708,13 @@ fn terminal_width() -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ramp_reaches_the_full_path_count_at_pass_four() {
+        let ramp: Vec<usize> = (1..=5).map(|i| ramp_beams(100_000, i)).collect();
+        assert_eq!(ramp, [12_500, 25_000, 50_000, 100_000, 100_000]);
+        assert_eq!(ramp_beams(3, 1), 1);
+    }
 
     #[test]
     fn checkpoint_parses_passes_and_seconds() {
