@@ -2,24 +2,24 @@
 mod watch;
 mod window;
 
-pub use watch::{watch, WatchArgs};
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
+pub use watch::{watch, WatchArgs};
 
 use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::film::Film;
 use ppb::majorant::{cache, Octree};
-use ppb::watch::octrees;
 use ppb::output::{self, Image};
 use ppb::render::{Renderer, Timings};
 use ppb::scene::toml as scene_toml;
 use ppb::transport::freepath::Mode;
 use ppb::transport::transmittance::TrMode;
 use ppb::transport::Counters;
+use ppb::watch::octrees;
 
 #[derive(Args)]
 pub struct RenderArgs {

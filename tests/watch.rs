@@ -166,7 +166,10 @@ fn light_edit_broken_toml_and_fix() {
     });
     let reload = w.log();
     let line = reload.lines().find(|l| l.contains("reload 2")).unwrap();
-    assert!(line.contains("lights") && line.contains("read no assets"), "{line}");
+    assert!(
+        line.contains("lights") && line.contains("read no assets"),
+        "{line}"
+    );
     assert!(
         out.with_extension("png").is_file(),
         "the PNG preview is written beside the EXR"
@@ -188,7 +191,10 @@ fn light_edit_broken_toml_and_fix() {
     std::thread::sleep(Duration::from_millis(800));
     assert!(w.alive(), "a broken scene must not stop ppb watch");
     let kept = mean(&out).unwrap();
-    assert!(kept > 3.0 * base, "the last good output stays: {kept} vs {base}");
+    assert!(
+        kept > 3.0 * base,
+        "the last good output stays: {kept} vs {base}"
+    );
 
     // Fixed: rendering resumes with the new scene (2x the first).
     save_by_rename(&scene, scene_text(&point_light(40.0), FOG).as_bytes());
@@ -198,7 +204,10 @@ fn light_edit_broken_toml_and_fix() {
     });
     let log = w.log();
     let errors: Vec<&str> = log.lines().filter(|l| l.starts_with("error: ")).collect();
-    assert!(errors.iter().all(|l| l.contains("scene.toml")), "{errors:?}");
+    assert!(
+        errors.iter().all(|l| l.contains("scene.toml")),
+        "{errors:?}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -224,7 +233,10 @@ fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
     assert_eq!(w.count("octree built"), 1, "{}", w.log());
     let log = w.log();
     let line = log.lines().find(|l| l.contains("reload 2")).unwrap();
-    assert!(line.contains("read no assets") && line.contains("1 octree(s) reused"), "{line}");
+    assert!(
+        line.contains("read no assets") && line.contains("1 octree(s) reused"),
+        "{line}"
+    );
 
     // A new VDB (saved by rename): exactly one octree rebuild, for that medium.
     let other = std::fs::read(root.join("cloud-hg/density.vdb")).unwrap();
@@ -235,7 +247,10 @@ fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
     assert_eq!(w.count("octree built"), 1 + 1, "{}", w.log());
     let log = w.log();
     let line = log.lines().find(|l| l.contains("reload 3")).unwrap();
-    assert!(line.contains("grid media [0]") && line.contains("density.vdb"), "{line}");
+    assert!(
+        line.contains("grid media [0]") && line.contains("density.vdb"),
+        "{line}"
+    );
     assert!(w.alive());
     std::fs::remove_dir_all(&dir).ok();
 }

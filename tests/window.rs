@@ -85,7 +85,9 @@ fn parse_xwd(b: &[u8]) -> Result<Shot, String> {
     let (rmask, gmask, bmask) = (word(14)?, word(15)?, word(16)?);
     let ncolors = word(19)? as usize;
     if format != 2 || bpp != 32 {
-        return Err(format!("expected a 32-bit ZPixmap, got format {format}, {bpp} bpp"));
+        return Err(format!(
+            "expected a 32-bit ZPixmap, got format {format}, {bpp} bpp"
+        ));
     }
     let data = header + 12 * ncolors;
     if b.len() < data + stride * h {
@@ -105,7 +107,11 @@ fn parse_xwd(b: &[u8]) -> Result<Shot, String> {
             rgb.push([channel(v, rmask), channel(v, gmask), channel(v, bmask)]);
         }
     }
-    Ok(Shot { width: w, height: h, rgb })
+    Ok(Shot {
+        width: w,
+        height: h,
+        rgb,
+    })
 }
 
 fn screenshot(xwd: &Path, display: &str) -> Result<Shot, String> {
@@ -114,7 +120,10 @@ fn screenshot(xwd: &Path, display: &str) -> Result<Shot, String> {
         .output()
         .map_err(|e| format!("running xwd: {e}"))?;
     if !out.status.success() {
-        return Err(format!("xwd failed: {}", String::from_utf8_lossy(&out.stderr)));
+        return Err(format!(
+            "xwd failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        ));
     }
     parse_xwd(&out.stdout)
 }
@@ -220,6 +229,9 @@ fn window_presents_the_image_under_xvfb() {
         lit > total / 20 && colours >= 16,
         "the window shows no image: {lit} of {total} pixels lit, {colours} colours\n{err}"
     );
-    assert!(!err.contains("--window"), "the window failed to open:\n{err}");
+    assert!(
+        !err.contains("--window"),
+        "the window failed to open:\n{err}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -380,8 +380,9 @@ impl Worker {
         if self.status.last_error.as_ref() == Some(&msg) {
             return;
         }
-        self.status
-            .log(&format!("error: {msg}; still rendering the last good scene"));
+        self.status.log(&format!(
+            "error: {msg}; still rendering the last good scene"
+        ));
         self.status.last_error = Some(msg);
         self.publish_error();
     }
@@ -447,7 +448,11 @@ impl Worker {
                 let assets = if loaded.is_empty() {
                     "no assets".to_string()
                 } else {
-                    loaded.iter().map(|l| short(Path::new(l))).collect::<Vec<_>>().join(", ")
+                    loaded
+                        .iter()
+                        .map(|l| short(Path::new(l)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 };
                 format!(
                     "{}: {}; read {assets}; {} octree(s) reused",
@@ -680,9 +685,12 @@ impl Worker {
         }
     }
 
+    /// Hands the window the latest error and exposure (no new image).
     fn publish_error(&mut self) {
+        let exposure = self.current.as_ref().map(|c| c.settings.exposure);
         if let Ok(mut f) = self.shared.lock() {
             f.error = self.status.last_error.clone();
+            f.exposure = exposure.unwrap_or(f.exposure);
             f.serial += 1;
         }
         if let Some(w) = &self.wake {

@@ -188,7 +188,9 @@ impl App {
             self.serial = frame.serial;
             if self.sized_for != (frame.width, frame.height) {
                 self.sized_for = (frame.width, frame.height);
-                let _ = g.window.request_inner_size(window_size(frame.width, frame.height));
+                let _ = g
+                    .window
+                    .request_inner_size(window_size(frame.width, frame.height));
             }
         }
         let error = frame
@@ -340,7 +342,10 @@ impl Gpu {
         let Some((texture, ..)) = &self.image else {
             return;
         };
-        let rgba: Vec<f32> = pixels.iter().flat_map(|p| [p[0], p[1], p[2], 1.0]).collect();
+        let rgba: Vec<f32> = pixels
+            .iter()
+            .flat_map(|p| [p[0], p[1], p[2], 1.0])
+            .collect();
         self.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture,
@@ -367,7 +372,8 @@ impl Gpu {
             return;
         };
         let frame = match self.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
+            wgpu::CurrentSurfaceTexture::Success(f)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
             wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
                 self.surface.configure(&self.device, &self.config);
                 self.window.request_redraw();
@@ -375,7 +381,11 @@ impl Gpu {
             }
             _ => return,
         };
-        let encode = if self.config.format.is_srgb() { 0.0 } else { 1.0 };
+        let encode = if self.config.format.is_srgb() {
+            0.0
+        } else {
+            1.0
+        };
         let params: [f32; 8] = [
             exposure,
             encode,

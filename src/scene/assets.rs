@@ -83,7 +83,12 @@ impl AssetCache {
             }
         }
         let imported = load()?;
-        let sidecars: Vec<PathBuf> = imported.files.iter().filter(|f| f.is_file()).cloned().collect();
+        let sidecars: Vec<PathBuf> = imported
+            .files
+            .iter()
+            .filter(|f| f.is_file())
+            .cloned()
+            .collect();
         let side = hash_files(&sidecars)?;
         self.loaded.push(path.display().to_string());
         let entry = ImportEntry {
@@ -114,5 +119,70 @@ impl AssetCache {
         self.loaded.push(key.to_string());
         self.grids.insert(key.to_string(), (hash, g.clone()));
         Ok(g)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::toml::load_cached;
+
+    const FLOOR: &str = "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nf 1 4 3\nf 1 3 2\n";
+
+    fn scene(light: f32) -> String {
+        format!(
+            "[camera]\norigin = [0, 1.5, 5]\ntarget = [0, 0.8, 0]\nvfov = 40\n\
+             [[mesh]]\npath = \"floor.obj\"\n\
+             [[light]]\ntype = \"point\"\nposition = [0, 2.6, 0]\nintensity = [{light}, 1, 1]\n\
+             [[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ndensity_scale = 8.0\nalbedo = [0.9, 0.9, 0.9]\n"
+        )
+    }
+
+    #[test]
+    fn reloads_only_changed_assets() {
+        let dir = std::env::temp_dir().join(format!("ppb-assets-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let vdb =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance/smoke-grid/density.vdb");
+        std::fs::copy(&vdb, dir.join("density.vdb")).unwrap();
+        std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, scene(1.0)).unwrap();
+        let mut cache = AssetCache::new();
+        let first = load_cached(&path, &mut cache).unwrap();
+        assert_eq!(cache.loaded().len(), 2, "{:?}", cache.loaded());
+
+        // A light edit reuses both: the same grid allocation, nothing read anew.
+        std::fs::write(&path, scene(2.0)).unwrap();
+        let second = load_cached(&path, &mut cache).unwrap();
+        assert!(cache.loaded().is_empty(), "{:?}", cache.loaded());
+        assert!(Arc::ptr_eq(
+            &first.scene.grid_media[0].grid,
+            &second.scene.grid_media[0].grid
+        ));
+
+        // An edited OBJ is read again, the grid is still reused.
+        std::fs::write(dir.join("floor.obj"), format!("{FLOOR}# edited\n")).unwrap();
+        load_cached(&path, &mut cache).unwrap();
+        assert_eq!(cache.loaded().len(), 1);
+        assert!(
+            cache.loaded()[0].ends_with("floor.obj"),
+            "{:?}",
+            cache.loaded()
+        );
+
+        // A truncated VDB fails the load; the cache keeps the good grid for when it is fixed.
+        let bytes = std::fs::read(&vdb).unwrap();
+        std::fs::write(dir.join("density.vdb"), &bytes[..bytes.len() / 2]).unwrap();
+        assert!(load_cached(&path, &mut cache).is_err());
+        std::fs::write(dir.join("density.vdb"), &bytes).unwrap();
+        let fixed = load_cached(&path, &mut cache).unwrap();
+        assert!(cache.loaded().is_empty(), "{:?}", cache.loaded());
+        assert!(Arc::ptr_eq(
+            &first.scene.grid_media[0].grid,
+            &fixed.scene.grid_media[0].grid
+        ));
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

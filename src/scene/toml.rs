@@ -643,9 +643,8 @@ fn medium(
             let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
             let key = format!("{} [{name}]", p.display());
             let file_hash = *blake3::hash(&bytes).as_bytes();
-            let loaded = cache.grid(&key, file_hash, || {
-                load_grid_file(ck, &f("path"), &p, name)
-            })?;
+            let loaded =
+                cache.grid(&key, file_hash, || load_grid_file(ck, &f("path"), &p, name))?;
             let scale = ck.in_range(
                 &f("density_scale"),
                 *density_scale,

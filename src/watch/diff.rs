@@ -25,7 +25,12 @@ pub struct Changes {
 }
 
 impl Changes {
-    pub fn between(old: &Scene, old_s: &RenderSettings, new: &Scene, new_s: &RenderSettings) -> Self {
+    pub fn between(
+        old: &Scene,
+        old_s: &RenderSettings,
+        new: &Scene,
+        new_s: &RenderSettings,
+    ) -> Self {
         let same_but_exposure = RenderSettings {
             exposure: new_s.exposure,
             ..old_s.clone()
@@ -37,11 +42,19 @@ impl Changes {
             lights: old.lights != new.lights,
             materials: old.materials != new.materials,
             meshes: old.meshes.len() != new.meshes.len()
-                || old.meshes.iter().zip(&new.meshes).any(|(a, b)| !mesh_eq(a, b)),
+                || old
+                    .meshes
+                    .iter()
+                    .zip(&new.meshes)
+                    .any(|(a, b)| !mesh_eq(a, b)),
             media: old.media != new.media,
             grids: new_fields(&old.grid_media, &new.grid_media),
             grid_params: old.grid_media.len() != new.grid_media.len()
-                || old.grid_media.iter().zip(&new.grid_media).any(|(a, b)| !grid_eq(a, b)),
+                || old
+                    .grid_media
+                    .iter()
+                    .zip(&new.grid_media)
+                    .any(|(a, b)| !grid_eq(a, b)),
         }
     }
 
@@ -69,7 +82,10 @@ impl Changes {
             (self.meshes, "meshes"),
             (self.media, "homogeneous media"),
             (!self.grids.is_empty(), grids.as_str()),
-            (self.grid_params && self.grids.is_empty(), "grid medium parameters"),
+            (
+                self.grid_params && self.grids.is_empty(),
+                "grid medium parameters",
+            ),
         ]
         .into_iter()
         .filter_map(|(on, name)| on.then_some(name))
