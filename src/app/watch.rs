@@ -220,6 +220,8 @@ struct Status {
     last_reload: String,
     last_error: Option<String>,
     line: String,
+    /// When the line was last drawn: redraws are limited to 10 per second.
+    drawn: Option<Instant>,
 }
 
 impl Status {
@@ -235,6 +237,10 @@ impl Status {
     }
 
     fn show(&mut self, line: String) {
+        if self.drawn.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
+            return;
+        }
+        self.drawn = Some(Instant::now());
         self.line = line;
         if self.tty {
             let mut err = std::io::stderr().lock();
@@ -259,6 +265,7 @@ impl Worker {
             last_reload: "none yet".into(),
             last_error: None,
             line: String::new(),
+            drawn: None,
         };
         Worker {
             cache_dir: super::cache_dir_for(&args.scene, args.cache_dir.as_ref()),
@@ -380,9 +387,12 @@ impl Worker {
         if self.status.last_error.as_ref() == Some(&msg) {
             return;
         }
-        self.status.log(&format!(
-            "error: {msg}; still rendering the last good scene"
-        ));
+        let then = if self.current.is_some() {
+            "still rendering the last good scene"
+        } else {
+            "waiting for the file to be fixed"
+        };
+        self.status.log(&format!("error: {msg}; {then}"));
         self.status.last_error = Some(msg);
         self.publish_error();
     }
@@ -649,10 +659,11 @@ impl Worker {
             None => String::new(),
         };
         let line = format!(
-            "{} | pass {}{budget} | {pps:.2} passes/s | reload {}: {}{err}",
+            "{} | pass {}{budget} | {pps:.2} passes/s | reload {} {:.0} s ago: {}{err}",
             self.status.scene,
             self.film.passes(),
             self.generation,
+            self.changed_at.elapsed().as_secs_f64(),
             self.status.last_reload
         );
         let width = terminal_width();
