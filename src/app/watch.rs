@@ -237,7 +237,10 @@ impl Status {
     }
 
     fn show(&mut self, line: String) {
-        if self.drawn.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
+        if self
+            .drawn
+            .is_some_and(|t| t.elapsed() < Duration::from_millis(100))
+        {
             return;
         }
         self.drawn = Some(Instant::now());

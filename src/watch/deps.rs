@@ -78,6 +78,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn lists_sidecars_of_imports() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/scene");
+        let text = "[camera]\norigin = [0, 1, 5]\ntarget = [0, 0, 0]\nvfov = 40\n\
+                    [[import]]\npath = \"glass_scene.gltf\"\n[[mesh]]\npath = \"glass_scene.obj\"\n\
+                    [[light]]\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = [1, 1, 1]\n";
+        let file = crate::scene::toml::parse(&dir.join("watched.toml"), text).unwrap();
+        let names: Vec<String> = files(&file)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "watched.toml",
+                "glass_scene.gltf",
+                "glass_scene.bin",
+                "glass_scene.obj",
+                "glass_scene.mtl"
+            ]
+        );
+        assert_eq!(folders(&files(&file)), vec![absolute(&dir)]);
+    }
+
+    #[test]
     fn normalises_and_filters() {
         let a = absolute(Path::new("/s/conf/fog/../../common/floor.obj"));
         assert_eq!(a, PathBuf::from("/s/common/floor.obj"));

@@ -109,3 +109,56 @@ impl OctreeStore {
         out
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene with two small noise media, the first with `seed`.
+    fn scene(seed: u32) -> Scene {
+        let medium = |seed: u32| {
+            format!(
+                "[[medium]]\ntype = \"noise\"\npreset = \"cloud\"\nbounds = [[-1, 0, -1], [1, 1, 1]]\n\
+                 resolution = 8\nseed = {seed}\ndensity_scale = 1.0\nalbedo = [0.9, 0.9, 0.9]\n"
+            )
+        };
+        let text = format!(
+            "[camera]\norigin = [0, 1, 5]\ntarget = [0, 0, 0]\nvfov = 40\n\
+             [[light]]\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = [1, 1, 1]\n{}{}",
+            medium(seed),
+            medium(99)
+        );
+        crate::scene::toml::parse(Path::new("noise.toml"), &text)
+            .unwrap()
+            .scene
+    }
+
+    fn origins(store: &mut OctreeStore, scene: &Scene, dir: &Path) -> Vec<Origin> {
+        let mut out = Vec::new();
+        store.prepare(scene, 3, dir, |_, _, o| out.push(o.clone()));
+        out
+    }
+
+    #[test]
+    fn keeps_unchanged_octrees_and_builds_only_changed_ones() {
+        let dir = std::env::temp_dir().join(format!("ppb-octrees-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut store = OctreeStore::new();
+        let built = |o: &Origin| matches!(o, Origin::Built { .. });
+        let first = origins(&mut store, &scene(1), &dir);
+        assert!(first.iter().all(built), "{first:?}");
+        assert_eq!(
+            origins(&mut store, &scene(1), &dir),
+            [Origin::Reused, Origin::Reused]
+        );
+        let changed = origins(&mut store, &scene(2), &dir);
+        assert!(
+            built(&changed[0]) && changed[1] == Origin::Reused,
+            "{changed:?}"
+        );
+        // Back to the first field: not in memory any more, but in the disk cache.
+        let back = origins(&mut store, &scene(1), &dir);
+        assert_eq!(back, [Origin::Cached, Origin::Reused]);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
