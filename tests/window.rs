@@ -171,6 +171,51 @@ position = [0, 2.6, 0]
 intensity = [40, 40, 40]
 "#;
 
+/// The window's keys, sent with xdotool: + + - + raises the exposure shown in the title by
+/// one stop, S writes a snapshot beside the output.
+fn keys(display: &str, out: &Path) {
+    let Some(xdotool) = find_program("xdotool") else {
+        return skip("xdotool is not installed (Debian: xdotool), the keys are not tested");
+    };
+    let run = |args: &[&str]| -> String {
+        let o = Command::new(&xdotool)
+            .args(args)
+            .env("DISPLAY", display)
+            .output()
+            .expect("running xdotool");
+        String::from_utf8_lossy(&o.stdout).trim().to_string()
+    };
+    let window = run(&["search", "--name", "^ppb watch"]);
+    let window = window
+        .lines()
+        .next()
+        .expect("the ppb window is on the display");
+    let title = || run(&["getwindowname", window]);
+    assert!(
+        title().contains("exposure +1.0"),
+        "scene exposure: {}",
+        title()
+    );
+    // Real key presses (XTEST) into the focused window, as a user types them; `=` is `+`
+    // without shift on a US keymap.
+    run(&["windowfocus", "--sync", window]);
+    run(&["key", "equal", "equal", "minus", "equal"]);
+    wait_until("the title to show exposure +2.0", || {
+        title().contains("exposure +2.0")
+    });
+    run(&["key", "s"]);
+    let snapshot = out.with_file_name("out-snapshot-1.png");
+    wait_until("the snapshot", || snapshot.is_file());
+}
+
+fn wait_until(what: &str, mut cond: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !cond() {
+        assert!(start.elapsed() < DEADLINE, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 #[test]
 fn window_presents_the_image_under_xvfb() {
     let (Some(xvfb), Some(xwd)) = (find_program("Xvfb"), find_program("xwd")) else {
@@ -222,11 +267,15 @@ fn window_presents_the_image_under_xvfb() {
         }
         std::thread::sleep(Duration::from_millis(250));
     }
+    let shown = lit > total / 20 && colours >= 16;
+    if shown {
+        keys(&display, &out);
+    }
     let _ = ppb.0.kill();
     let mut err = String::new();
     ppb.0.stderr.take().unwrap().read_to_string(&mut err).ok();
     assert!(
-        lit > total / 20 && colours >= 16,
+        shown,
         "the window shows no image: {lit} of {total} pixels lit, {colours} colours\n{err}"
     );
     assert!(
