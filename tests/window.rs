@@ -171,8 +171,10 @@ position = [0, 2.6, 0]
 intensity = [40, 40, 40]
 "#;
 
-/// The window's keys, sent with xdotool: + + - + raises the exposure shown in the title by
-/// one stop, S writes a snapshot beside the output.
+/// The window's keys, sent with xdotool as real key presses (XTEST) into the focused
+/// window: `=` (`+` without shift) and `-` move the exposure shown in the title by half
+/// stops, S writes a snapshot beside the output. A press made while the window is still
+/// settling can be lost, so each step presses again until its effect shows.
 fn keys(display: &str, out: &Path) {
     let Some(xdotool) = find_program("xdotool") else {
         return skip("xdotool is not installed (Debian: xdotool), the keys are not tested");
@@ -190,29 +192,41 @@ fn keys(display: &str, out: &Path) {
         .lines()
         .next()
         .expect("the ppb window is on the display");
-    let title = || run(&["getwindowname", window]);
-    assert!(
-        title().contains("exposure +1.0"),
-        "scene exposure: {}",
-        title()
-    );
-    // Real key presses (XTEST) into the focused window, as a user types them; `=` is `+`
-    // without shift on a US keymap.
+    let exposure = || {
+        let t = run(&["getwindowname", window]);
+        let e = t
+            .split("exposure ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next());
+        e.and_then(|e| e.parse::<f32>().ok())
+            .unwrap_or_else(|| panic!("no exposure in the title \"{t}\""))
+    };
+    assert_eq!(exposure(), 1.0, "the title shows the scene's exposure");
     run(&["windowfocus", "--sync", window]);
-    run(&["key", "equal", "equal", "minus", "equal"]);
-    wait_until("the title to show exposure +2.0", || {
-        title().contains("exposure +2.0")
-    });
-    run(&["key", "s"]);
+    press_until(&run, window, "equal", "exposure +2.0", || exposure() >= 2.0);
+    press_until(&run, window, "minus", "exposure +1.5", || exposure() < 2.0);
+    assert_eq!(exposure(), 1.5);
     let snapshot = out.with_file_name("out-snapshot-1.png");
-    wait_until("the snapshot", || snapshot.is_file());
+    press_until(&run, window, "s", "the snapshot", || snapshot.is_file());
 }
 
-fn wait_until(what: &str, mut cond: impl FnMut() -> bool) {
+/// Presses `key` until `done`, waiting a second for each press to show.
+fn press_until(
+    run: &dyn Fn(&[&str]) -> String,
+    window: &str,
+    key: &str,
+    what: &str,
+    mut done: impl FnMut() -> bool,
+) {
     let start = Instant::now();
-    while !cond() {
+    while !done() {
         assert!(start.elapsed() < DEADLINE, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
+        run(&["windowfocus", "--sync", window]);
+        run(&["key", key]);
+        let pressed = Instant::now();
+        while !done() && pressed.elapsed() < Duration::from_secs(1) {
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 }
 
