@@ -345,6 +345,7 @@ impl Worker {
                 }
             }
             if !touched.is_empty() {
+                touched.sort();
                 touched.dedup();
                 self.changed_at = Instant::now();
                 self.reload(&touched);
@@ -432,24 +433,13 @@ impl Worker {
                 self.status.log(&format!("reload: {what}"));
                 self.status.last_reload = what;
                 self.publish_error();
-                self.write_outputs("exposure");
+                if c.exposure {
+                    self.write_outputs("exposure");
+                }
                 return;
             }
         }
-        let mut tree_lines = Vec::new();
-        let mut reused = 0;
-        let trees = self.trees.prepare(
-            &file.scene,
-            settings.octree_depth,
-            &self.cache_dir,
-            |i, g, origin| match origin {
-                octrees::Origin::Reused => reused += 1,
-                _ => tree_lines.push(octrees::describe(i, g, origin)),
-            },
-        );
-        for l in &tree_lines {
-            self.status.log(l);
-        }
+        let (trees, reused) = self.octrees(&file, &settings);
         let renderer = match Renderer::with_octrees(&file.scene, settings.clone(), trees.clone()) {
             Ok(r) => r,
             Err(e) => return self.error(e.to_string()),
@@ -457,23 +447,7 @@ impl Worker {
         self.generation += 1;
         let what = match &changes {
             None => format!("loaded {}", short(&self.args.scene)),
-            Some(c) => {
-                let assets = if loaded.is_empty() {
-                    "no assets".to_string()
-                } else {
-                    loaded
-                        .iter()
-                        .map(|l| short(Path::new(l)))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                };
-                format!(
-                    "{}: {}; read {assets}; {} octree(s) reused",
-                    names.join(", "),
-                    c.describe(),
-                    reused
-                )
-            }
+            Some(c) => summary(&names, c, &loaded, reused),
         };
         self.status
             .log(&format!("reload {}: {what}", self.generation));
@@ -493,6 +467,30 @@ impl Worker {
         self.gen_start = Instant::now();
         self.written_at_pass = 0;
         self.publish_error();
+    }
+
+    /// The scene's octrees (kept, cached or built; every non-kept one logged) and how many
+    /// were kept from the previous scene.
+    fn octrees(
+        &mut self,
+        file: &SceneFile,
+        settings: &RenderSettings,
+    ) -> (Vec<ppb::majorant::Octree>, usize) {
+        let mut lines = Vec::new();
+        let mut reused = 0;
+        let trees = self.trees.prepare(
+            &file.scene,
+            settings.octree_depth,
+            &self.cache_dir,
+            |i, g, origin| match origin {
+                octrees::Origin::Reused => reused += 1,
+                _ => lines.push(octrees::describe(i, g, origin)),
+            },
+        );
+        for l in &lines {
+            self.status.log(l);
+        }
+        (trees, reused)
     }
 
     /// Watches the folders of the watched files, and no others.
@@ -711,6 +709,21 @@ impl Worker {
             w();
         }
     }
+}
+
+/// "files: what changed; read assets; N octree(s) reused" for a reload's log line.
+fn summary(touched: &[String], c: &Changes, loaded: &[String], reused: usize) -> String {
+    let assets = if loaded.is_empty() {
+        "no assets".to_string()
+    } else {
+        let names: Vec<String> = loaded.iter().map(|l| short(Path::new(l))).collect();
+        names.join(", ")
+    };
+    format!(
+        "{}: {}; read {assets}; {reused} octree(s) reused",
+        touched.join(", "),
+        c.describe()
+    )
 }
 
 /// The file name alone, for short messages.
