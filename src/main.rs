@@ -43,7 +43,9 @@ Reloaded: only what changed. A camera, light, material or settings edit re-reads
 reuses the loaded meshes, grids and octrees; a changed asset is read again; a changed grid gets \
 a new octree through the cache (.ppb-cache/, rebuilt only on a miss) while the other media keep \
 theirs. An exposure-only edit keeps the image. Any other change restarts the accumulation, which \
-refines until the pass budget (--passes, default [render].passes, 0 = forever).\n\n\
+refines until the pass budget (--passes, default [render].passes, 0 = forever); passes 1-3 \
+after a reload trace 1/8, 1/4 and 1/2 of the light paths so the first preview comes fast \
+(--no-ramp: all of them). Reloads are applied between passes.\n\n\
 Errors: a syntax error, a missing or truncated asset or a file caught mid-write prints one line \
 with the file and line, and the last good scene keeps rendering until the file is fixed. The \
 EXR and PNG are rewritten atomically (after the first pass of each reload, then every \
