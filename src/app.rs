@@ -1,10 +1,14 @@
 //! Runs the stages for each subcommand: progress bar, checkpoints, outputs, stats.
+mod watch;
+mod window;
+
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
+pub use watch::{watch, WatchArgs};
 
 use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::film::Film;
@@ -18,6 +22,7 @@ use ppb::scene::toml as scene_toml;
 use ppb::transport::freepath::Mode;
 use ppb::transport::transmittance::TrMode;
 use ppb::transport::Counters;
+use ppb::watch::octrees;
 
 #[derive(Args)]
 pub struct RenderArgs {
@@ -163,37 +168,10 @@ fn prepare_octrees(
 ) -> Result<Vec<Octree>> {
     let mut trees = Vec::with_capacity(scene.grid_media.len());
     for (i, g) in scene.grid_media.iter().enumerate() {
-        let (status, tree) = cache::load(dir, g, depth);
-        let tree = match tree {
-            Some(t) => {
-                if !quiet {
-                    eprintln!("medium {i} ({}): octree loaded from cache", g.source);
-                }
-                t
-            }
-            None => {
-                let start = Instant::now();
-                let t = Octree::build(g, depth);
-                let stored = cache::store(dir, g, depth, &t);
-                if !quiet {
-                    let why = match &status {
-                        cache::Status::Invalid(w) => format!(" (cache invalid: {w})"),
-                        _ => String::new(),
-                    };
-                    let where_ = match &stored {
-                        Ok(p) => format!("stored in {}", p.display()),
-                        Err(e) => format!("not stored: {e}"),
-                    };
-                    eprintln!(
-                        "medium {i} ({}): octree built in {:.2} s, {} nodes{why}; {where_}",
-                        g.source,
-                        start.elapsed().as_secs_f64(),
-                        t.nodes.len()
-                    );
-                }
-                t
-            }
-        };
+        let (tree, origin) = octrees::load_or_build(dir, g, depth);
+        if !quiet {
+            eprintln!("{}", octrees::describe(i, g, &origin));
+        }
         trees.push(tree);
     }
     Ok(trees)
@@ -448,6 +426,36 @@ fn write_outputs(
     seconds: f64,
     scene: &Path,
 ) -> Result<()> {
+    write_outputs_meta(out, img, passes, s, seconds, scene, &[])
+}
+
+/// A film's mean image written by [`write_outputs_meta`] (`ppb watch`).
+fn write_film(
+    out: &Path,
+    film: &Film,
+    s: &ppb::settings::RenderSettings,
+    seconds: f64,
+    scene: &Path,
+    extra: &[(String, String)],
+) -> Result<()> {
+    let img = Image {
+        width: film.width as usize,
+        height: film.height as usize,
+        pixels: film.image(),
+    };
+    write_outputs_meta(out, &img, film.passes(), s, seconds, scene, extra)
+}
+
+/// [`write_outputs`] with `extra` header attributes (e.g. `ppb watch`'s reload number).
+fn write_outputs_meta(
+    out: &Path,
+    img: &Image,
+    passes: u32,
+    s: &ppb::settings::RenderSettings,
+    seconds: f64,
+    scene: &Path,
+    extra: &[(String, String)],
+) -> Result<()> {
     let meta = vec![
         ("ppb.scene".to_string(), scene.display().to_string()),
         ("ppb.passes".to_string(), passes.to_string()),
@@ -467,6 +475,7 @@ fn write_outputs(
             format!("{:?}", s.photon_radius),
         ),
     ];
+    let meta: Vec<(String, String)> = meta.into_iter().chain(extra.iter().cloned()).collect();
     output::write_exr(out, img, &meta)?;
     output::write_png(&out.with_extension("png"), img, s.exposure)?;
     Ok(())

@@ -20,3 +20,4 @@ pub mod sampling;
 pub mod scene;
 pub mod settings;
 pub mod transport;
+pub mod watch;

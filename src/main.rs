@@ -31,6 +31,31 @@ distance to the centre of the surfaces' bounds. Both then shrink every pass by e
 (beam radius, and photon radius squared, times (i + alpha) / (i + 1))."
     )]
     Render(app::RenderArgs),
+    /// Live preview: re-render progressively whenever the scene or an asset it uses changes.
+    #[command(
+        long_about = "Render a scene progressively and start again whenever it changes on disk, \
+for moving lights, tweaking densities or re-exporting assets with ppb open.\n\n\
+Watched: the scene file and every file it references: [[import]] and [[mesh]] files (glTF with \
+its .bin buffers and images, OBJ with its .mtl, USD stages with their layers and VDB assets), \
+grid media (.vdb, .nvdb) and a USD stage's .ppb.toml sidecar. Their folders are watched, so \
+editors that save by writing a temp file and renaming it are seen.\n\n\
+Reloaded: only what changed. A camera, light, material or settings edit re-reads the TOML and \
+reuses the loaded meshes, grids and octrees; a changed asset is read again; a changed grid gets \
+a new octree through the cache (.ppb-cache/, rebuilt only on a miss) while the other media keep \
+theirs. An exposure-only edit keeps the image. Any other change restarts the accumulation, which \
+refines until the pass budget (--passes, default [render].passes, 0 = forever); passes 1-3 \
+after a reload trace 1/8, 1/4 and 1/2 of the light paths so the first preview comes fast \
+(--no-ramp: all of them). Reloads are applied between passes.\n\n\
+Errors: a syntax error, a missing or truncated asset or a file caught mid-write prints one line \
+with the file and line, and the last good scene keeps rendering until the file is fixed. The \
+EXR and PNG are rewritten atomically (after the first pass of each reload, then every \
+--checkpoint), so a broken scene never replaces a good image.\n\n\
+--window shows the image live (Vulkan through wgpu; title: passes, time, last error; keys: \
++/- exposure, S snapshot to <output>-snapshot-N.exr/png, Esc/Q quit). Without a display it \
+prints an error and keeps writing the files. The terminal shows one status line: scene, pass, \
+passes per second, the last reload and what it reloaded."
+    )]
+    Watch(app::WatchArgs),
     /// Compare two EXR images: rel_l1, relative RMSE, per-channel means.
     #[command(
         long_about = "Compare a candidate EXR against a reference EXR. Prints rel_l1 = \
@@ -87,6 +112,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => app::render(args),
+        Command::Watch(args) => app::watch(args),
         Command::Compare(args) => app::compare(args),
         Command::Bench(args) => app::bench(args),
         Command::Build(args) => app::build(args),

@@ -48,7 +48,27 @@ pub fn load_gltf(path: &Path) -> Result<Imported> {
     for node in scene.nodes() {
         walker.visit(&node, Mat4::IDENTITY)?;
     }
+    walker.out.files = external_files(path, &document);
     Ok(walker.out)
+}
+
+/// Buffers and images referenced by relative URI (not `data:`), resolved against the file's
+/// folder: re-exporting a glTF rewrites them too, so they are watched with it.
+fn external_files(path: &Path, document: &Document) -> Vec<std::path::PathBuf> {
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let buffers = document.buffers().filter_map(|b| match b.source() {
+        ::gltf::buffer::Source::Uri(u) => Some(u.to_string()),
+        ::gltf::buffer::Source::Bin => None,
+    });
+    let images = document.images().filter_map(|i| match i.source() {
+        ::gltf::image::Source::Uri { uri, .. } => Some(uri.to_string()),
+        ::gltf::image::Source::View { .. } => None,
+    });
+    buffers
+        .chain(images)
+        .filter(|u| !u.starts_with("data:") && !u.contains("://"))
+        .map(|u| dir.join(u))
+        .collect()
 }
 
 /// Parses and validates the document and loads its buffers (never its images).

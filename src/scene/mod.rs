@@ -1,6 +1,7 @@
 //! Scene import: every source (TOML scene file, OBJ, glTF, USD) ends up as one [`Scene`].
 //!
 //! Units: metres, radiometric (W, W/sr, W/m^2, W/(m^2 sr)); right-handed, +Y up.
+pub mod assets;
 pub mod gltf;
 pub mod obj;
 pub mod toml;
@@ -85,6 +86,9 @@ pub struct Imported {
     pub grid_media: Vec<GridMedium>,
     /// One line per prim imported or ignored, with its path, for `ppb info`.
     pub notes: Vec<String>,
+    /// Files read besides the imported file itself (glTF buffers, .mtl, USD layers, VDB
+    /// assets): `ppb watch` watches them and the asset cache hashes them.
+    pub files: Vec<std::path::PathBuf>,
 }
 
 /// Everything the renderer needs, in world space.

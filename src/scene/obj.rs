@@ -27,7 +27,9 @@ pub fn load_obj(path: &Path) -> Result<Imported> {
         ignore_lines: true,
     };
     let dir = path.parent().unwrap_or(Path::new(""));
+    let mtl_files = std::cell::RefCell::new(Vec::new());
     let (models, mtl) = tobj::load_obj_buf(&mut BufReader::new(file), &options, |mtl_path| {
+        mtl_files.borrow_mut().push(dir.join(mtl_path));
         tobj::load_mtl(dir.join(mtl_path))
     })
     .map_err(|e| Error::format(path, e.to_string()))?;
@@ -38,6 +40,7 @@ pub fn load_obj(path: &Path) -> Result<Imported> {
             .iter()
             .map(convert_material)
             .collect(),
+        files: mtl_files.into_inner(),
         ..Default::default()
     };
     let mut default = None;

@@ -4,6 +4,7 @@ use glam::Vec3;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+use super::assets::AssetCache;
 use super::{Camera, Imported, Light, Material, NamedMaterial, Scene};
 use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
@@ -12,7 +13,6 @@ use crate::settings::{Radius, RenderSettings};
 use crate::transport::freepath::Mode;
 use crate::transport::transmittance::{TrMode, MAX_TR_BLOCK, MAX_TR_SAMPLES};
 use glam::DAffine3;
-use std::sync::Arc;
 
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -232,11 +232,21 @@ fn line_of(text: &str, offset: usize) -> usize {
 /// Loads a scene file; a USD stage (.usd, .usda, .usdc, .usdz) is loaded as a scene of
 /// its own, see [`load_usd_scene`].
 pub fn load(path: &Path) -> Result<SceneFile> {
-    if is_usd(path) {
-        return load_usd_scene(path);
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse(path, &text)
+    load_cached(path, &mut AssetCache::new())
+}
+
+/// [`load`], reusing the imports and grids of earlier loads through `cache` when their
+/// files are unchanged (`ppb watch`); `cache.loaded()` then lists what was read anew.
+pub fn load_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
+    cache.begin();
+    let file = if is_usd(path) {
+        load_usd_scene_cached(path, cache)?
+    } else {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        build(path, parse_file(path, &text)?, cache)?
+    };
+    cache.prune();
+    Ok(file)
 }
 
 fn extension_of(p: &Path) -> String {
@@ -256,6 +266,10 @@ pub fn is_usd(p: &Path) -> bool {
 /// lights, media, a camera that overrides the stage's) and the stage is added to its
 /// imports.
 pub fn load_usd_scene(path: &Path) -> Result<SceneFile> {
+    load_usd_scene_cached(path, &mut AssetCache::new())
+}
+
+fn load_usd_scene_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
     let stem = path.file_stem().unwrap_or_default().to_string_lossy();
     let sidecar = path.with_file_name(format!("{stem}.ppb.toml"));
     let mut file = if sidecar.is_file() {
@@ -266,12 +280,16 @@ pub fn load_usd_scene(path: &Path) -> Result<SceneFile> {
     };
     let name = path.file_name().unwrap_or_default();
     file.import.push(FileImport { path: name.into() });
-    build(path, file)
+    let mut scene = build(path, file, cache)?;
+    if sidecar.is_file() {
+        scene.sources.push(sidecar);
+    }
+    Ok(scene)
 }
 
 /// Parses scene text as if it were the file at `path` (its folder resolves relative paths).
 pub fn parse(path: &Path, text: &str) -> Result<SceneFile> {
-    build(path, parse_file(path, text)?)
+    build(path, parse_file(path, text)?, &mut AssetCache::new())
 }
 
 fn parse_file(path: &Path, text: &str) -> Result<FileScene> {
@@ -286,7 +304,7 @@ fn parse_file(path: &Path, text: &str) -> Result<FileScene> {
 }
 
 /// Assembles a parsed scene file; `path` is the file it came from.
-fn build(path: &Path, file: FileScene) -> Result<SceneFile> {
+fn build(path: &Path, file: FileScene, cache: &mut AssetCache) -> Result<SceneFile> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let ck = Check { path };
     let settings = render_settings(&ck, &file.render)?;
@@ -299,17 +317,19 @@ fn build(path: &Path, file: FileScene) -> Result<SceneFile> {
     let mut notes = Vec::new();
     for (i, imp) in file.import.iter().enumerate() {
         let p = dir.join(&imp.path);
-        let mut imported = load_asset(&p, &format!("import[{i}].path"), path)?;
+        let mut imported = load_asset(&p, &format!("import[{i}].path"), path, cache)?;
         notes.append(&mut imported.notes);
         sources.push(p);
+        sources.append(&mut imported.files);
         camera = camera.or(imported.camera);
         merge(&mut scene, imported, None);
     }
     for (i, m) in file.mesh.iter().enumerate() {
         let p = dir.join(&m.path);
-        let mut imported = load_asset(&p, &format!("mesh[{i}].path"), path)?;
+        let mut imported = load_asset(&p, &format!("mesh[{i}].path"), path, cache)?;
         notes.append(&mut imported.notes);
         sources.push(p);
+        sources.append(&mut imported.files);
         let over = match &m.material {
             Some(name) => Some(find_material(&ck, &scene, i, name)?),
             None => None,
@@ -323,7 +343,7 @@ fn build(path: &Path, file: FileScene) -> Result<SceneFile> {
         if let FileMedium::Grid { path: p, .. } = m {
             sources.push(dir.join(p));
         }
-        match medium(&ck, dir, i, m)? {
+        match medium(&ck, dir, i, m, cache)? {
             Medium::Homogeneous(h) => scene.media.push(h),
             Medium::Grid(g) => scene.grid_media.push(g),
         }
@@ -489,15 +509,20 @@ fn find_material(ck: &Check, scene: &Scene, i: usize, name: &str) -> Result<usiz
         })
 }
 
-fn load_asset(p: &Path, field: &str, scene_path: &Path) -> Result<Imported> {
+fn load_asset(
+    p: &Path,
+    field: &str,
+    scene_path: &Path,
+    cache: &mut AssetCache,
+) -> Result<Imported> {
     let ext = p
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
     let imported = match ext.as_str() {
-        "obj" => super::obj::load_obj(p)?,
-        "gltf" | "glb" => super::gltf::load_gltf(p)?,
-        "usd" | "usda" | "usdc" | "usdz" => super::usd::load_usd(p)?,
+        "obj" => cache.import(p, || super::obj::load_obj(p))?,
+        "gltf" | "glb" => cache.import(p, || super::gltf::load_gltf(p))?,
+        "usd" | "usda" | "usdc" | "usdz" => cache.import(p, || super::usd::load_usd(p))?,
         _ => {
             return Err(Error::field(
                 scene_path,
@@ -596,7 +621,13 @@ enum Medium {
     Grid(GridMedium),
 }
 
-fn medium(ck: &Check, dir: &Path, i: usize, m: &FileMedium) -> Result<Medium> {
+fn medium(
+    ck: &Check,
+    dir: &Path,
+    i: usize,
+    m: &FileMedium,
+    cache: &mut AssetCache,
+) -> Result<Medium> {
     let f = |k: &str| format!("medium[{i}].{k}");
     match m {
         FileMedium::Grid {
@@ -609,7 +640,11 @@ fn medium(ck: &Check, dir: &Path, i: usize, m: &FileMedium) -> Result<Medium> {
         } => {
             let p = dir.join(path);
             let name = grid.as_deref().unwrap_or("density");
-            let loaded = load_grid_file(ck, &f("path"), &p, name)?;
+            let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
+            let key = format!("{} [{name}]", p.display());
+            let file_hash = *blake3::hash(&bytes).as_bytes();
+            let loaded =
+                cache.grid(&key, file_hash, || load_grid_file(ck, &f("path"), &p, name))?;
             let scale = ck.in_range(
                 &f("density_scale"),
                 *density_scale,
@@ -618,12 +653,11 @@ fn medium(ck: &Check, dir: &Path, i: usize, m: &FileMedium) -> Result<Medium> {
                 "a finite number >= 0",
             )?;
             let xf = grid_transform(ck, &f("transform"), transform.as_ref())?;
-            let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
             let mut h = blake3::Hasher::new();
             h.update(&bytes);
             h.update(format!("{name} {scale} {xf:?}").as_bytes());
             Ok(Medium::Grid(GridMedium::new(
-                Arc::new(loaded),
+                loaded,
                 xf,
                 scale,
                 check_albedo(ck, &f("albedo"), albedo)?,
@@ -702,8 +736,11 @@ fn medium(ck: &Check, dir: &Path, i: usize, m: &FileMedium) -> Result<Medium> {
                 "a finite number >= 0",
             )?;
             let hash = blake3::hash(format!("noise {params:?} {scale}").as_bytes());
+            let key = format!("noise {params:?}");
+            let field_hash = *blake3::hash(key.as_bytes()).as_bytes();
+            let grid = cache.grid(&key, field_hash, || Ok(procedural::build(&params)))?;
             Ok(Medium::Grid(GridMedium::new(
-                Arc::new(procedural::build(&params)),
+                grid,
                 DAffine3::IDENTITY,
                 scale,
                 check_albedo(ck, &f("albedo"), albedo)?,

@@ -93,7 +93,11 @@ fn import(path: &Path, path_str: &str) -> Result<Imported> {
     if let Some(e) = stage.composition_errors().first() {
         return Err(Error::format(path, format!("composition error: {e}")));
     }
-    Ok(ctx.out)
+    let mut out = ctx.out;
+    let layers = stage.layer_identifiers().into_iter().map(PathBuf::from);
+    let layers: Vec<PathBuf> = layers.filter(|l| l.is_file() && l != path).collect();
+    out.files.splice(0..0, layers);
+    Ok(out)
 }
 
 /// Import state: the stage, the stage-to-ppb root correction, caches and the output.
@@ -741,6 +745,7 @@ impl<'a> Ctx<'a> {
             return Err(self.err(p, "ppb:g must be in (-1, 1)"));
         }
         let bytes = std::fs::read(&file).map_err(|e| Error::io(&file, e))?;
+        self.out.files.push(file.clone());
         let scale = scale as f32;
         let mut h = blake3::Hasher::new();
         h.update(&bytes);

@@ -1,0 +1,164 @@
+//! Majorant octrees across reloads: a medium whose field is unchanged keeps its octree in
+//! memory; a changed one goes through the disk cache and is built only on a miss.
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+use crate::majorant::{cache, Octree};
+use crate::media::GridMedium;
+use crate::scene::Scene;
+
+/// Where a medium's octree came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Origin {
+    /// Kept from the previous load (same cache key).
+    Reused,
+    /// Read from the cache folder.
+    Cached,
+    /// Built now; `why` says why a cache file was not used, `stored` where it went.
+    Built {
+        seconds: f64,
+        nodes: usize,
+        why: Option<String>,
+        stored: Result<String, String>,
+    },
+}
+
+/// Loads the octree of `g` from the cache folder, else builds and stores it.
+pub fn load_or_build(dir: &Path, g: &GridMedium, depth: u32) -> (Octree, Origin) {
+    let (status, tree) = cache::load(dir, g, depth);
+    if let Some(t) = tree {
+        return (t, Origin::Cached);
+    }
+    let start = Instant::now();
+    let t = Octree::build(g, depth);
+    let stored = cache::store(dir, g, depth, &t);
+    let origin = Origin::Built {
+        seconds: start.elapsed().as_secs_f64(),
+        nodes: t.nodes.len(),
+        why: match status {
+            cache::Status::Invalid(w) => Some(w),
+            _ => None,
+        },
+        stored: stored
+            .map(|p| p.display().to_string())
+            .map_err(|e| e.to_string()),
+    };
+    (t, origin)
+}
+
+/// The log line for medium `i`: "octree built in ..." marks every build (tests count it).
+pub fn describe(i: usize, g: &GridMedium, origin: &Origin) -> String {
+    match origin {
+        Origin::Reused => format!("medium {i} ({}): octree reused (field unchanged)", g.source),
+        Origin::Cached => format!("medium {i} ({}): octree loaded from cache", g.source),
+        Origin::Built {
+            seconds,
+            nodes,
+            why,
+            stored,
+        } => {
+            let why = why
+                .as_ref()
+                .map_or(String::new(), |w| format!(" (cache invalid: {w})"));
+            let where_ = match stored {
+                Ok(p) => format!("stored in {p}"),
+                Err(e) => format!("not stored: {e}"),
+            };
+            format!(
+                "medium {i} ({}): octree built in {seconds:.2} s, {nodes} nodes{why}; {where_}",
+                g.source
+            )
+        }
+    }
+}
+
+/// The octrees of the current scene, by cache key.
+#[derive(Default)]
+pub struct OctreeStore {
+    trees: HashMap<[u8; 32], Octree>,
+}
+
+impl OctreeStore {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// One octree per grid medium of `scene`, reusing kept ones; `report` hears where each
+    /// came from. Afterwards only this scene's octrees are kept.
+    pub fn prepare(
+        &mut self,
+        scene: &Scene,
+        depth: u32,
+        dir: &Path,
+        mut report: impl FnMut(usize, &GridMedium, &Origin),
+    ) -> Vec<Octree> {
+        let mut kept = HashMap::new();
+        let mut out = Vec::with_capacity(scene.grid_media.len());
+        for (i, g) in scene.grid_media.iter().enumerate() {
+            let key = cache::key(g, depth);
+            let (tree, origin) = match self.trees.get(&key).or_else(|| kept.get(&key)) {
+                Some(t) => (t.clone(), Origin::Reused),
+                None => load_or_build(dir, g, depth),
+            };
+            report(i, g, &origin);
+            kept.insert(key, tree.clone());
+            out.push(tree);
+        }
+        self.trees = kept;
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene with two small noise media, the first with `seed`.
+    fn scene(seed: u32) -> Scene {
+        let medium = |seed: u32| {
+            format!(
+                "[[medium]]\ntype = \"noise\"\npreset = \"cloud\"\nbounds = [[-1, 0, -1], [1, 1, 1]]\n\
+                 resolution = 8\nseed = {seed}\ndensity_scale = 1.0\nalbedo = [0.9, 0.9, 0.9]\n"
+            )
+        };
+        let text = format!(
+            "[camera]\norigin = [0, 1, 5]\ntarget = [0, 0, 0]\nvfov = 40\n\
+             [[light]]\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = [1, 1, 1]\n{}{}",
+            medium(seed),
+            medium(99)
+        );
+        crate::scene::toml::parse(Path::new("noise.toml"), &text)
+            .unwrap()
+            .scene
+    }
+
+    fn origins(store: &mut OctreeStore, scene: &Scene, dir: &Path) -> Vec<Origin> {
+        let mut out = Vec::new();
+        store.prepare(scene, 3, dir, |_, _, o| out.push(o.clone()));
+        out
+    }
+
+    #[test]
+    fn keeps_unchanged_octrees_and_builds_only_changed_ones() {
+        let dir = std::env::temp_dir().join(format!("ppb-octrees-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut store = OctreeStore::new();
+        let built = |o: &Origin| matches!(o, Origin::Built { .. });
+        let first = origins(&mut store, &scene(1), &dir);
+        assert!(first.iter().all(built), "{first:?}");
+        assert_eq!(
+            origins(&mut store, &scene(1), &dir),
+            [Origin::Reused, Origin::Reused]
+        );
+        let changed = origins(&mut store, &scene(2), &dir);
+        assert!(
+            built(&changed[0]) && changed[1] == Origin::Reused,
+            "{changed:?}"
+        );
+        // Back to the first field: not in memory any more, but in the disk cache.
+        let back = origins(&mut store, &scene(1), &dir);
+        assert_eq!(back, [Origin::Cached, Origin::Reused]);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,256 @@
+//! `ppb watch` end to end: the built binary watches a scene in a temp folder while the test
+//! edits it the way editors do (rename over the file, or rewrite in place). Everything is
+//! polled with generous deadlines so a loaded 2-core CI machine passes too.
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const DEADLINE: Duration = Duration::from_secs(60);
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ppb-watch-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const FLOOR: &str =
+    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
+
+/// A 32x32 scene: floor, one light (`light`), and `medium`.
+fn scene_text(light: &str, medium: &str) -> String {
+    format!(
+        r#"[render]
+width = 32
+height = 32
+passes = 100000
+beams_per_pass = 1000
+
+[camera]
+origin = [0, 1.5, 5]
+target = [0, 0.8, 0]
+vfov = 40
+
+[[material]]
+name = "floor"
+type = "lambert"
+reflectance = [0.5, 0.5, 0.5]
+
+[[mesh]]
+path = "floor.obj"
+material = "floor"
+
+{light}
+
+{medium}
+"#
+    )
+}
+
+fn point_light(intensity: f32) -> String {
+    format!(
+        "[[light]]\ntype = \"point\"\nposition = [0, 2.6, 0]\nintensity = [{intensity}, {intensity}, {intensity}]"
+    )
+}
+
+const FOG: &str = "[[medium]]\ntype = \"homogeneous\"\nbounds = [[-1, 0.25, -1], [1, 1.75, 1]]\nsigma_t = 1.0\nalbedo = [0.8, 0.8, 0.8]";
+
+/// How editors save: write a temp file, rename it over the original.
+fn save_by_rename(path: &Path, text: &[u8]) {
+    let tmp = path.with_file_name(format!(
+        ".{}.swp",
+        path.file_name().unwrap().to_string_lossy()
+    ));
+    std::fs::write(&tmp, text).unwrap();
+    std::fs::rename(&tmp, path).unwrap();
+}
+
+/// The running `ppb watch` and its stderr lines; killed when dropped.
+struct Watch {
+    child: Child,
+    lines: Arc<Mutex<Vec<String>>>,
+}
+
+impl Watch {
+    fn start(scene: &Path, out: &Path, extra: &[&str]) -> Watch {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_ppb"))
+            .arg("watch")
+            .arg(scene)
+            .arg("-o")
+            .arg(out)
+            .args(["--threads", "1", "--checkpoint", "0.2s"])
+            .args(extra)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("starting ppb watch");
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let sink = lines.clone();
+        let stderr = child.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            for l in BufReader::new(stderr).lines().map_while(Result::ok) {
+                sink.lock().unwrap().push(l);
+            }
+        });
+        Watch { child, lines }
+    }
+
+    fn log(&self) -> String {
+        self.lines.lock().unwrap().join("\n")
+    }
+
+    fn count(&self, needle: &str) -> usize {
+        let lines = self.lines.lock().unwrap();
+        lines.iter().filter(|l| l.contains(needle)).count()
+    }
+
+    fn alive(&mut self) -> bool {
+        self.child.try_wait().unwrap().is_none()
+    }
+
+    /// Polls `cond` until it holds; fails with the log when the deadline passes or the
+    /// process ends.
+    fn wait(&mut self, what: &str, mut cond: impl FnMut(&Watch) -> bool) {
+        let start = Instant::now();
+        while !cond(self) {
+            assert!(
+                self.alive(),
+                "ppb watch exited while waiting for {what}:\n{}",
+                self.log()
+            );
+            assert!(
+                start.elapsed() < DEADLINE,
+                "timed out waiting for {what}:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl Drop for Watch {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Mean of the output EXR; the file, once there, must always read completely.
+fn mean(out: &Path) -> Option<f64> {
+    if !out.exists() {
+        return None;
+    }
+    let img = ppb::output::read_exr(out).expect("the output is always a complete EXR");
+    let sum: f64 = img.pixels.iter().flatten().map(|&c| c as f64).sum();
+    Some(sum / (3 * img.pixels.len()) as f64)
+}
+
+#[test]
+fn light_edit_broken_toml_and_fix() {
+    let dir = temp_dir("light");
+    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, scene_text(&point_light(20.0), FOG)).unwrap();
+    let out = dir.join("out.exr");
+    let mut w = Watch::start(&scene, &out, &[]);
+    w.wait("the first output", |w| w.count("preview") >= 1);
+    let base = mean(&out).unwrap();
+    assert!(base > 0.0, "a lit scene renders non-black");
+
+    // A light edit: the image restarts and gets 4x brighter, nothing else is read again.
+    save_by_rename(&scene, scene_text(&point_light(80.0), FOG).as_bytes());
+    w.wait("the brighter image", |w| {
+        w.count("reload 2") >= 1 && mean(&out).unwrap() > 3.0 * base
+    });
+    let reload = w.log();
+    let line = reload.lines().find(|l| l.contains("reload 2")).unwrap();
+    assert!(
+        line.contains("lights") && line.contains("read no assets"),
+        "{line}"
+    );
+    assert!(
+        out.with_extension("png").is_file(),
+        "the PNG preview is written beside the EXR"
+    );
+
+    // A syntax error, written in place: one error with file and line, the process stays
+    // up and the last good (bright) output stays readable and is not replaced.
+    std::fs::write(&scene, "[render]\nwidth = 32\n[[light]\ntype = \n").unwrap();
+    w.wait("the syntax error", |w| w.count("error: ") >= 1);
+    // A save caught mid-write may first report another error; the syntax one must come.
+    w.wait("the line of the syntax error", |w| w.count("line 3") >= 1);
+    let err = w.log();
+    let err = err.lines().find(|l| l.contains("line 3")).unwrap();
+    assert!(
+        err.contains("scene.toml") && err.contains("line 3"),
+        "the error names the file and line: {err}"
+    );
+    assert!(err.contains("still rendering the last good scene"), "{err}");
+    std::thread::sleep(Duration::from_millis(800));
+    assert!(w.alive(), "a broken scene must not stop ppb watch");
+    let kept = mean(&out).unwrap();
+    assert!(
+        kept > 3.0 * base,
+        "the last good output stays: {kept} vs {base}"
+    );
+
+    // Fixed: rendering resumes with the new scene (2x the first).
+    save_by_rename(&scene, scene_text(&point_light(40.0), FOG).as_bytes());
+    w.wait("the fixed scene", |w| {
+        let m = mean(&out).unwrap();
+        w.count("reload 3") >= 1 && m > 1.5 * base && m < 2.5 * base
+    });
+    let log = w.log();
+    let errors: Vec<&str> = log.lines().filter(|l| l.starts_with("error: ")).collect();
+    assert!(
+        errors.iter().all(|l| l.contains("scene.toml")),
+        "{errors:?}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance");
+    let dir = temp_dir("vdb");
+    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    std::fs::copy(root.join("smoke-grid/density.vdb"), dir.join("density.vdb")).unwrap();
+    let grid = "[[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ngrid = \"density\"\ndensity_scale = 8.0\nalbedo = [0.9, 0.9, 0.9]";
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, scene_text(&point_light(20.0), grid)).unwrap();
+    let out = dir.join("out.exr");
+    let cache = dir.join("cache");
+    let cache_arg = cache.to_str().unwrap();
+    let mut w = Watch::start(&scene, &out, &["--cache-dir", cache_arg]);
+    w.wait("the first output", |w| w.count("preview") >= 1);
+    assert_eq!(w.count("octree built"), 1, "{}", w.log());
+
+    // A light edit keeps the grid and its octree.
+    save_by_rename(&scene, scene_text(&point_light(30.0), grid).as_bytes());
+    w.wait("the light reload", |w| w.count("preview") >= 2);
+    assert_eq!(w.count("octree built"), 1, "{}", w.log());
+    let log = w.log();
+    let line = log.lines().find(|l| l.contains("reload 2")).unwrap();
+    assert!(
+        line.contains("read no assets") && line.contains("1 octree(s) reused"),
+        "{line}"
+    );
+
+    // A new VDB (saved by rename): exactly one octree rebuild, for that medium.
+    let other = std::fs::read(root.join("cloud-hg/density.vdb")).unwrap();
+    save_by_rename(&dir.join("density.vdb"), &other);
+    w.wait("the VDB reload", |w| w.count("preview") >= 3);
+    // Let a late duplicate event show itself if there were one.
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(w.count("octree built"), 1 + 1, "{}", w.log());
+    let log = w.log();
+    let line = log.lines().find(|l| l.contains("reload 3")).unwrap();
+    assert!(
+        line.contains("grid media [0]") && line.contains("density.vdb"),
+        "{line}"
+    );
+    assert!(w.alive());
+    std::fs::remove_dir_all(&dir).ok();
+}
