@@ -4,10 +4,13 @@
 //! mean; the bound is 1.3 times that (the spread of that estimate) plus the reference's own
 //! 4x4-block noise (reference.json) and a 1 % allowance for kernel bias. Radii are those of
 //! the full-resolution render. A 10 % error in brightness fails both tests.
+mod common;
+
+use common::gpu_or_skip;
 use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
-use ppb::gpu::{DeviceKind, Gpu};
+use ppb::gpu::Gpu;
 use ppb::output::{read_exr, Image};
 use ppb::progressive::Progressive;
 use ppb::render::Renderer;
@@ -52,21 +55,6 @@ fn render_on(
         acc.pass(&r, i).expect("pass");
     }
     acc.image().expect("image")
-}
-
-/// An adapter (software ones included), or None after printing why the test skips;
-/// PPB_REQUIRE_GPU=1 (CI) makes a missing adapter a failure.
-fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match ppb::gpu::open(DeviceKind::Gpu) {
-        Ok(g) => g,
-        Err(e) if std::env::var("PPB_REQUIRE_GPU").as_deref() == Ok("1") => {
-            panic!("{test}: PPB_REQUIRE_GPU=1 but {e}")
-        }
-        Err(e) => {
-            eprintln!("{test}: skipped: {e}");
-            None
-        }
-    }
 }
 
 fn average(a: &Image, b: &Image) -> Image {

@@ -2,32 +2,20 @@
 //! transmittance estimates) must give the same per-pixel beam radiance on both devices
 //! within float32 rounding. On a machine without an adapter these tests print why they
 //! skip, unless PPB_REQUIRE_GPU=1 (CI, which installs lavapipe) makes that a failure.
+mod common;
+
+use common::gpu_or_skip;
 use std::path::Path;
 use std::process::Command;
 
 use ppb::estimate::cpu::beam_image;
 use ppb::gpu::beams::GpuBeams;
-use ppb::gpu::{self, DeviceKind, Gpu};
 use ppb::render::Renderer;
 use ppb::scene::toml::load;
 use ppb::transport::transmittance::TrMode;
 
 fn data(p: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
-}
-
-/// An adapter (software ones included), or None after printing why the test skips.
-pub fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match gpu::open(DeviceKind::Gpu) {
-        Ok(g) => g,
-        Err(e) if std::env::var("PPB_REQUIRE_GPU").as_deref() == Ok("1") => {
-            panic!("{test}: PPB_REQUIRE_GPU=1 but {e}")
-        }
-        Err(e) => {
-            eprintln!("{test}: skipped: {e}");
-            None
-        }
-    }
 }
 
 struct Parity {
