@@ -175,13 +175,23 @@ struct Current {
     ramp: Option<(usize, Renderer)>,
 }
 
-/// Light paths of pass `i` after a (re)load: 1/8, 1/4, 1/2 of the scene's, then all. The
-/// first preview then comes after a short pass, and an edit made soon after another waits
-/// only for a short pass in flight. Every pass is an unbiased estimate whatever its path
-/// count, so the progressive mean stays consistent.
-fn ramp_beams(full: usize, i: u32) -> usize {
-    let shift = 3u32.saturating_sub(i.saturating_sub(1));
-    (full >> shift).max(1)
+/// Passes are kept near this long (s): an edit waits for at most one pass in flight.
+const PASS_TARGET: f64 = 0.3;
+
+/// Light paths of pass `i` after a (re)load, given the previous pass's paths and seconds:
+/// 1/8 of the scene's first, then doubled while a pass takes under half of
+/// [`PASS_TARGET`], up to all of them. The first preview comes after a short pass and, on a
+/// heavy scene, passes stay short so a save is never stuck behind a long one. Every pass is
+/// an unbiased estimate whatever its path count, so the progressive mean stays consistent.
+fn ramp_beams(full: usize, i: u32, last_beams: usize, last_seconds: f64) -> usize {
+    if i <= 1 || last_beams == 0 {
+        return (full >> 3).max(1);
+    }
+    if last_seconds < 0.5 * PASS_TARGET {
+        (last_beams * 2).min(full)
+    } else {
+        last_beams.min(full)
+    }
 }
 
 /// The render thread: owns the scene, the accumulation, the watcher and the status line.
@@ -523,7 +533,7 @@ impl Worker {
         let beams = if self.args.no_ramp {
             full
         } else {
-            ramp_beams(full, i)
+            ramp_beams(full, i, self.pass_beams, self.pass_seconds)
         };
         let start = Instant::now();
         let result = match self.ramp_renderer(beams) {
@@ -744,11 +754,18 @@ fn terminal_width() -> usize {
 mod tests {
     use super::*;
 
+    /// Fast passes double up to the full count; slow ones stay put.
     #[test]
-    fn ramp_reaches_the_full_path_count_at_pass_four() {
-        let ramp: Vec<usize> = (1..=5).map(|i| ramp_beams(100_000, i)).collect();
-        assert_eq!(ramp, [12_500, 25_000, 50_000, 100_000, 100_000]);
-        assert_eq!(ramp_beams(3, 1), 1);
+    fn ramp_doubles_while_passes_are_short() {
+        let (mut beams, mut seen) = (0, Vec::new());
+        for i in 1..=5 {
+            beams = ramp_beams(100_000, i, beams, 0.01);
+            seen.push(beams);
+        }
+        assert_eq!(seen, [12_500, 25_000, 50_000, 100_000, 100_000]);
+        assert_eq!(ramp_beams(3, 1, 0, 0.0), 1);
+        assert_eq!(ramp_beams(100_000, 3, 25_000, 0.2), 25_000);
+        assert_eq!(ramp_beams(100_000, 1, 25_000, 0.01), 12_500);
     }
 
     #[test]
