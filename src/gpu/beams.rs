@@ -74,7 +74,7 @@ impl Grow {
     /// Makes room for `bytes` (contents undefined).
     fn reserve(&mut self, gpu: &Gpu, bytes: u64) -> Result<()> {
         let need = bytes.max(16);
-        if need > gpu.limits.max_storage_buffer_binding_size as u64 {
+        if need > gpu.limits.max_storage_buffer_binding_size {
             return Err(Error::Gpu(format!(
                 "{} needs {need} bytes, over the adapter's storage binding limit of {} \
                  (use a smaller image or --device cpu)",
@@ -158,7 +158,7 @@ impl GpuBeams {
         } else {
             bytemuck::cast_slice(&grid_words)
         };
-        if grid_bytes.len() as u64 > gpu.limits.max_storage_buffer_binding_size as u64 {
+        if grid_bytes.len() as u64 > gpu.limits.max_storage_buffer_binding_size {
             return Err(Error::Gpu(format!(
                 "the density grids need {} bytes, over the adapter's storage binding limit \
                  of {} (use --device cpu)",

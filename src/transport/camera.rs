@@ -260,29 +260,34 @@ impl CameraTracer<'_> {
             depth: 0,
             in_glass: false,
         };
-        let l = self.follow(ray, state, rng, c, Some(&mut primary), strat, out);
+        let l = self.follow(ray, state, rng, c, Some((&mut primary, strat)), out);
         (l, primary)
     }
 
     /// Follows a camera path from `ray`. At the first [`SPLIT_DEPTH`] dielectric hits both
     /// the reflected and the refracted branch are followed, weighted by F and 1 - F, which
-    /// removes the noise of picking one (highlights of the light seen in glass).
+    /// removes the noise of picking one (highlights of the light seen in glass). `first`
+    /// (the primary segment to fill in and its stratified free paths) is given for the
+    /// camera ray only.
     fn follow(
         &self,
         mut ray: Ray,
         mut st: PathState,
         rng: &mut Rng,
         c: &mut Counters,
-        mut primary: Option<&mut Primary>,
-        mut strat: Option<StratPixel>,
+        mut first: Option<(&mut Primary, Option<StratPixel>)>,
         out: &mut Out,
     ) -> Rgb {
         let mut l = Rgb::ZERO;
         while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
-            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat.take());
-            if let Some(p) = primary.take() {
+            let (primary, strat) = match first.take() {
+                Some((p, s)) => (Some(p), s),
+                None => (None, None),
+            };
+            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat);
+            if let Some(p) = primary {
                 p.t_surf = t_surf;
                 p.tr = gtr.clone();
             } else if !st.in_glass && !self.media.spans(&ray, t_surf).is_empty() {
@@ -323,7 +328,7 @@ impl CameraTracer<'_> {
                             in_glass: enters_glass(&material, dir, h.ng),
                             ..st
                         };
-                        l += self.follow(leave(&h, dir), next, rng, c, None, None, out);
+                        l += self.follow(leave(&h, dir), next, rng, c, None, out);
                     }
                     break;
                 }
