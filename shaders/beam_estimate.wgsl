@@ -40,10 +40,10 @@ struct GridMeta {
 }
 
 struct Params {
-    pixels: u32,
     radius: f32,
     box_count: u32,
     grid_count: u32,
+    _pad: u32,
     boxes: array<MediumBox, MAX_BOXES>,
     grids: array<GridMeta, MAX_GRIDS>,
 }

@@ -3,6 +3,7 @@
 //! rel_rmse = sqrt(mean (x - ref)^2) / mean |ref|.
 use crate::error::{Error, Result};
 use crate::output::Image;
+use crate::scene::Rgb;
 
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Metrics {
@@ -48,6 +49,43 @@ pub fn compare(x: &Image, reference: &Image, skip: Option<&[bool]>) -> Result<Me
         mean_ref: mean_ref.map(|m| m / nf),
         pixels: n,
     })
+}
+
+/// How far the GPU's per-pixel beam estimate is from the CPU's, summed over passes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DeviceDiff {
+    /// sum |gpu - cpu| and sum |cpu| over pixels and channels.
+    pub diff: f64,
+    pub total: f64,
+    /// Pixels where some channel differs by more than 1e-3 of max(its CPU value, 1e-3 of
+    /// the image's largest): a crossing at distance ~r or at a beam piece's end can be
+    /// decided differently by float32 rounding on the two devices, moving one whole term.
+    pub off_pixels: usize,
+    /// Pixels with any CPU radiance.
+    pub lit_pixels: usize,
+}
+
+impl DeviceDiff {
+    /// Adds one pass: `cpu` per-pixel radiance, `gpu` the accumulator (w is not radiance).
+    pub fn add(&mut self, cpu: &[Rgb], gpu: &[[f32; 4]]) {
+        let top = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max) as f64;
+        for (c, g) in cpu.iter().zip(gpu) {
+            let mut off = false;
+            for k in 0..3 {
+                let (a, b) = (c[k] as f64, g[k] as f64);
+                self.diff += (a - b).abs();
+                self.total += a.abs();
+                off |= (a - b).abs() > 1e-3 * a.abs().max(1e-3 * top);
+            }
+            self.off_pixels += usize::from(off);
+            self.lit_pixels += usize::from(c.max_element() > 0.0);
+        }
+    }
+
+    /// sum |gpu - cpu| / sum |cpu|.
+    pub fn rel_l1(&self) -> f64 {
+        self.diff / self.total.max(1e-300)
+    }
 }
 
 /// Means over `k` x `k` pixel blocks (the image size must divide by k).

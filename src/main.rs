@@ -91,7 +91,8 @@ error at the PPB baseline's wall time (log-log interpolation)."
     #[command(
         long_about = "Traces a few passes of each scene once and runs the beam estimate of each \
 pass on the CPU and on the GPU, printing milliseconds per pass on each, their ratio, beam-segment \
-crossings per pass and per second, and the largest relative difference between the two images."
+crossings per pass and per second, the relative L1 difference between the two images and the \
+number of pixels that differ by more than 1e-3."
     )]
     BenchGpu(app::BenchGpuArgs),
     /// Print what a scene file contains.

@@ -116,7 +116,8 @@ impl Progressive {
             Some(g) => {
                 let (acc, timing) = g.read()?;
                 self.gpu_stats.record(timing, None);
-                self.gpu_stats.beam_evaluations = acc.iter().map(|a| a[3] as f64).sum::<f64>() as u64;
+                self.gpu_stats.beam_evaluations =
+                    acc.iter().map(|a| a[3] as f64).sum::<f64>() as u64;
                 self.film.image_plus(&acc)
             }
         };

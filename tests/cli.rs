@@ -1,6 +1,9 @@
 //! The `ppb` binary end to end: a tiny render with its outputs and stats, `compare`'s exit
 //! codes, and bad input, which must give one line naming the file and field, exit code 2
 //! and no panic.
+mod common;
+
+use common::{floor_scene, write_floor};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -8,41 +11,12 @@ fn ppb() -> Command {
     Command::new(env!("CARGO_BIN_EXE_ppb"))
 }
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ppb-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-const FLOOR: &str =
-    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
-
 /// A small valid scene; `extra` is appended to it.
 fn scene(dir: &Path, extra: &str) -> PathBuf {
-    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
-    let text = format!(
-        r#"[render]
-width = 24
-height = 16
-passes = 2
-beams_per_pass = 2000
-
-[camera]
-origin = [0, 1.5, 5]
-target = [0, 0.8, 0]
-vfov = 40
-
-[[material]]
-name = "floor"
-type = "lambert"
-reflectance = [0.5, 0.5, 0.5]
-
-[[mesh]]
-path = "floor.obj"
-material = "floor"
-
-[[light]]
+    write_floor(dir);
+    let render = "width = 24\nheight = 16\npasses = 2\nbeams_per_pass = 2000";
+    let rest = format!(
+        r#"[[light]]
 type = "point"
 position = [0, 2.6, 0]
 intensity = [20, 20, 20]
@@ -55,7 +29,7 @@ albedo = [0.8, 0.8, 0.8]
 {extra}"#
     );
     let p = dir.join("scene.toml");
-    std::fs::write(&p, text).unwrap();
+    std::fs::write(&p, floor_scene(render, 0.5, &rest)).unwrap();
     p
 }
 
@@ -74,7 +48,7 @@ fn render(scene: &Path, out: &Path) -> (i32, String) {
 }
 
 fn assert_bad(name: &str, edit: impl Fn(&Path, &Path) -> PathBuf, expect: &[&str]) {
-    let dir = temp_dir(name);
+    let dir = common::temp_dir("cli", name);
     let good = scene(&dir, "");
     let bad = edit(&dir, &good);
     let (code, err) = render(&bad, &dir.join("out.exr"));
@@ -96,7 +70,7 @@ fn rewrite(path: &Path, from: &str, to: &str) -> PathBuf {
 
 #[test]
 fn renders_with_outputs_and_stats() {
-    let dir = temp_dir("ok");
+    let dir = common::temp_dir("cli", "ok");
     let s = scene(&dir, "");
     let out = dir.join("img.exr");
     let stats = dir.join("stats.json");
@@ -219,7 +193,7 @@ fn bad_input_is_one_clear_line() {
 
 #[test]
 fn failed_render_keeps_earlier_output() {
-    let dir = temp_dir("keep");
+    let dir = common::temp_dir("cli", "keep");
     let s = scene(&dir, "");
     let out = dir.join("img.exr");
     assert_eq!(render(&s, &out).0, 0);
@@ -253,7 +227,7 @@ fn ppb_in(args: &[&str], scene: &Path) -> (i32, String, String) {
 /// the cache stale, and a corrupt or truncated cache file is detected and rebuilt.
 #[test]
 fn octree_cache_lifecycle() {
-    let dir = temp_dir("cache");
+    let dir = common::temp_dir("cli", "cache");
     let s = scene(&dir, NOISE);
     let (code, out, _) = ppb_in(&["build", "--check"], &s);
     assert_eq!(code, 1, "{out}");

@@ -127,7 +127,10 @@ fn check_on(
     eprintln!(
         "{scene} ({}): rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
         if device == Device::Gpu { "GPU" } else { "CPU" },
-        m.rel_l1, noise, m.mean[0], m.mean_ref[0]
+        m.rel_l1,
+        noise,
+        m.mean[0],
+        m.mean_ref[0]
     );
     Some(Outcome {
         rel_l1: m.rel_l1,
@@ -241,8 +244,7 @@ fn conformance_on_gpu() {
         let scene = format!("scenes/conformance/{name}/scene.toml");
         let reference = format!("tests/data/conformance/{name}/reference.exr");
         let mask = mask.map(|m| format!("tests/data/conformance/{name}/{m}"));
-        let Some(o) = check_on(&scene, &reference, mask.as_deref(), 48, 20_000, Device::Gpu)
-        else {
+        let Some(o) = check_on(&scene, &reference, mask.as_deref(), 48, 20_000, Device::Gpu) else {
             return;
         };
         let bound = 1.3 * o.noise + ref_noise + 0.01;

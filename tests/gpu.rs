@@ -8,6 +8,7 @@ use common::gpu_or_skip;
 use std::path::Path;
 use std::process::Command;
 
+use ppb::compare::DeviceDiff;
 use ppb::estimate::cpu::beam_image;
 use ppb::gpu::beams::GpuBeams;
 use ppb::render::Renderer;
@@ -19,13 +20,7 @@ fn data(p: &str) -> std::path::PathBuf {
 }
 
 struct Parity {
-    /// Pixels where some channel has |gpu - cpu| > 1e-3 max(cpu, 1e-3 of the image's
-    /// largest value): a crossing at distance ~r or at a beam piece's end can be decided
-    /// differently by float32 rounding on the two devices, which moves one whole term.
-    off_pixels: usize,
-    /// sum |gpu - cpu| / sum |cpu|.
-    rel_l1: f64,
-    lit_pixels: usize,
+    diff: DeviceDiff,
     evaluations: u64,
     secondary: usize,
 }
@@ -38,13 +33,10 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
     let r = Renderer::new(&file.scene, s).expect("renderer");
     let mut est = GpuBeams::new(g, r.media(), r.camera().origin(), size * size).expect("gpu");
     let mut out = Parity {
-        off_pixels: 0,
-        rel_l1: 0.0,
-        lit_pixels: 0,
+        diff: DeviceDiff::default(),
         evaluations: 0,
         secondary: 0,
     };
-    let (mut diff, mut total) = (0.0f64, 0.0f64);
     for &i in passes {
         let t = r.trace(i, true);
         let (cpu, evals) = beam_image(
@@ -57,27 +49,14 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
         );
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
-        let (acc, _) = est.read().expect("read back");
-        let top = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max) as f64;
-        let floor = 1e-3 * top;
-        for (c, g) in cpu.iter().zip(&acc) {
-            let mut off = false;
-            for k in 0..3 {
-                let (a, b) = (c[k] as f64, g[k] as f64);
-                diff += (a - b).abs();
-                total += a.abs();
-                off |= (a - b).abs() > 1e-3 * a.abs().max(floor);
-            }
-            out.off_pixels += usize::from(off);
-            out.lit_pixels += usize::from(c.max_element() > 0.0);
-        }
+        out.diff.add(&cpu, &est.read().expect("read back").0);
         out.evaluations += evals;
         out.secondary += t.camera.secondary.len();
     }
-    out.rel_l1 = diff / total;
+    let d = &out.diff;
     eprintln!(
         "{scene}: rel_l1 {:.2e}, {} of {} lit pixels off by > 1e-3, {} evaluations, {} secondary segments",
-        out.rel_l1, out.off_pixels, out.lit_pixels, out.evaluations, out.secondary
+        d.rel_l1(), d.off_pixels, d.lit_pixels, out.evaluations, out.secondary
     );
     Some(out)
 }
@@ -90,9 +69,13 @@ fn gpu_matches_cpu_on_smoke_grid() {
         let Some(p) = parity(scene, 96, 20_000, tr, &[1, 7]) else {
             return;
         };
-        assert!(p.evaluations > 100_000 && p.lit_pixels > 3000);
-        assert!(p.off_pixels * 1000 <= p.lit_pixels, "{tr:?}: {} pixels off", p.off_pixels);
-        assert!(p.rel_l1 < 1e-5, "{tr:?}: rel_l1 {}", p.rel_l1);
+        assert!(p.evaluations > 100_000 && p.diff.lit_pixels > 3000);
+        assert!(
+            p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
+            "{tr:?}: {} pixels off",
+            p.diff.off_pixels
+        );
+        assert!(p.diff.rel_l1() < 1e-5, "{tr:?}: rel_l1 {}", p.diff.rel_l1());
     }
 }
 
@@ -104,8 +87,12 @@ fn gpu_matches_cpu_on_glass_caustic() {
         return;
     };
     assert!(p.secondary > 1000 && p.evaluations > 500_000);
-    assert!(p.off_pixels * 1000 <= p.lit_pixels, "{} pixels off", p.off_pixels);
-    assert!(p.rel_l1 < 1e-5, "rel_l1 {}", p.rel_l1);
+    assert!(
+        p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
+        "{} pixels off",
+        p.diff.off_pixels
+    );
+    assert!(p.diff.rel_l1() < 1e-5, "rel_l1 {}", p.diff.rel_l1());
 }
 
 /// The command line: `--device gpu` renders, says which adapter, and the stats file
@@ -116,12 +103,13 @@ fn render_on_gpu_from_the_command_line() {
     if gpu_or_skip("render_on_gpu_from_the_command_line").is_none() {
         return;
     }
-    let dir = std::env::temp_dir().join(format!("ppb-gpu-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::temp_dir("gpu", "cli");
     let out = dir.join("smoke.exr");
     let stats = dir.join("stats.json");
     let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
-        .args(["render", "--device", "gpu", "--size", "32x32", "--passes", "6"])
+        .args([
+            "render", "--device", "gpu", "--size", "32x32", "--passes", "6",
+        ])
         .args(["--beams", "2000", "--quiet", "--cache-dir"])
         .arg(dir.join("cache"))
         .arg("-o")
@@ -131,7 +119,11 @@ fn render_on_gpu_from_the_command_line() {
         .arg(data("scenes/conformance/smoke-grid/scene.toml"))
         .output()
         .unwrap();
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
     let g = &json["gpu"];
@@ -143,8 +135,17 @@ fn render_on_gpu_from_the_command_line() {
     assert!(img.pixels.iter().any(|p| p[0] > 0.0));
 
     let none = Command::new(env!("CARGO_BIN_EXE_ppb"))
-        .env("WGPU_BACKEND", if cfg!(target_os = "macos") { "dx12" } else { "metal" })
-        .args(["render", "--device", "gpu", "--size", "8x8", "--passes", "1", "--quiet"])
+        .env(
+            "WGPU_BACKEND",
+            if cfg!(target_os = "macos") {
+                "dx12"
+            } else {
+                "metal"
+            },
+        )
+        .args([
+            "render", "--device", "gpu", "--size", "8x8", "--passes", "1", "--quiet",
+        ])
         .arg("-o")
         .arg(dir.join("none.exr"))
         .arg(data("scenes/conformance/fog-box/scene.toml"))
@@ -152,7 +153,10 @@ fn render_on_gpu_from_the_command_line() {
         .unwrap();
     let err = String::from_utf8_lossy(&none.stderr);
     assert_eq!(none.status.code(), Some(2), "{err}");
-    assert!(err.contains("no GPU adapter") && err.lines().count() == 1, "{err}");
+    assert!(
+        err.contains("no GPU adapter") && err.lines().count() == 1,
+        "{err}"
+    );
     assert!(!dir.join("none.exr").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

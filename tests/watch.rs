@@ -1,52 +1,21 @@
 //! `ppb watch` end to end: the built binary watches a scene in a temp folder while the test
 //! edits it the way editors do (rename over the file, or rewrite in place). Everything is
 //! polled with generous deadlines so a loaded 2-core CI machine passes too.
+mod common;
+
+use common::{floor_scene, write_floor};
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const DEADLINE: Duration = Duration::from_secs(60);
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ppb-watch-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-const FLOOR: &str =
-    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
-
 /// A 32x32 scene: floor, one light (`light`), and `medium`.
 fn scene_text(light: &str, medium: &str) -> String {
-    format!(
-        r#"[render]
-width = 32
-height = 32
-passes = 100000
-beams_per_pass = 1000
-
-[camera]
-origin = [0, 1.5, 5]
-target = [0, 0.8, 0]
-vfov = 40
-
-[[material]]
-name = "floor"
-type = "lambert"
-reflectance = [0.5, 0.5, 0.5]
-
-[[mesh]]
-path = "floor.obj"
-material = "floor"
-
-{light}
-
-{medium}
-"#
-    )
+    let render = "width = 32\nheight = 32\npasses = 100000\nbeams_per_pass = 1000";
+    floor_scene(render, 0.5, &format!("{light}\n\n{medium}\n"))
 }
 
 fn point_light(intensity: f32) -> String {
@@ -149,8 +118,8 @@ fn mean(out: &Path) -> Option<f64> {
 
 #[test]
 fn light_edit_broken_toml_and_fix() {
-    let dir = temp_dir("light");
-    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    let dir = common::temp_dir("watch", "light");
+    write_floor(&dir);
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, scene_text(&point_light(20.0), FOG)).unwrap();
     let out = dir.join("out.exr");
@@ -214,8 +183,8 @@ fn light_edit_broken_toml_and_fix() {
 #[test]
 fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance");
-    let dir = temp_dir("vdb");
-    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    let dir = common::temp_dir("watch", "vdb");
+    write_floor(&dir);
     std::fs::copy(root.join("smoke-grid/density.vdb"), dir.join("density.vdb")).unwrap();
     let grid = "[[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ngrid = \"density\"\ndensity_scale = 8.0\nalbedo = [0.9, 0.9, 0.9]";
     let scene = dir.join("scene.toml");

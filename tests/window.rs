@@ -4,6 +4,9 @@
 //!
 //! Without Xvfb or xwd the test prints why it is skipped, unless PPB_REQUIRE_GPU=1 (CI),
 //! where that is a failure.
+mod common;
+
+use common::{floor_scene, write_floor};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -141,35 +144,11 @@ fn content(shot: &Shot) -> (usize, usize) {
     (lit, colours.len())
 }
 
-const FLOOR: &str =
-    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
-
-const SCENE: &str = r#"[render]
-width = 32
-height = 32
-passes = 100000
-beams_per_pass = 2000
-exposure = 1.0
-
-[camera]
-origin = [0, 1.5, 5]
-target = [0, 0.8, 0]
-vfov = 40
-
-[[material]]
-name = "floor"
-type = "lambert"
-reflectance = [0.8, 0.8, 0.8]
-
-[[mesh]]
-path = "floor.obj"
-material = "floor"
-
-[[light]]
-type = "point"
-position = [0, 2.6, 0]
-intensity = [40, 40, 40]
-"#;
+fn scene_text() -> String {
+    let render = "width = 32\nheight = 32\npasses = 100000\nbeams_per_pass = 2000\nexposure = 1.0";
+    let light = "[[light]]\ntype = \"point\"\nposition = [0, 2.6, 0]\nintensity = [40, 40, 40]\n";
+    floor_scene(render, 0.8, light)
+}
 
 /// The window's keys, sent with xdotool as real key presses (XTEST) into the focused
 /// window: `=` (`+` without shift) and `-` move the exposure shown in the title by half
@@ -238,12 +217,10 @@ fn window_presents_the_image_under_xvfb() {
     let Some((_xvfb, display)) = start_xvfb(&xvfb) else {
         return skip("Xvfb did not start");
     };
-    let dir = std::env::temp_dir().join(format!("ppb-window-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+    let dir = common::temp_dir("window", "xvfb");
+    write_floor(&dir);
     let scene = dir.join("scene.toml");
-    std::fs::write(&scene, SCENE).unwrap();
+    std::fs::write(&scene, scene_text()).unwrap();
     let out = dir.join("out.exr");
     let before = screenshot(&xwd, &display).expect("screenshot of the empty display");
     assert_eq!(content(&before).0, 0, "the empty root window is black");

@@ -148,7 +148,11 @@ impl BeamMap {
             )
         });
         if let Some(bvh) = &bvh {
-            pieces = bvh.primitive_indices.iter().map(|&i| pieces[i as usize]).collect();
+            pieces = bvh
+                .primitive_indices
+                .iter()
+                .map(|&i| pieces[i as usize])
+                .collect();
         }
         BeamMap {
             pieces,

@@ -117,9 +117,6 @@ pub struct GpuBeams {
     origin: Vec3,
     pixels: u32,
     in_flight: Option<InFlight>,
-    /// Beam-segment pair tests the last submitted pass can make at most (BVH candidates
-    /// are not counted on the GPU): kernel evaluations are counted on the CPU side.
-    pub dispatches: u64,
 }
 
 impl GpuBeams {
@@ -151,8 +148,7 @@ impl GpuBeams {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("beam_estimate.wgsl: {e}")));
         }
-        let (mut params, grid_words) = media_params(media)?;
-        params.pixels = pixels;
+        let (params, grid_words) = media_params(media)?;
         let grid_bytes: &[u8] = if grid_words.is_empty() {
             &[0; 16]
         } else {
@@ -208,7 +204,6 @@ impl GpuBeams {
             origin,
             pixels,
             in_flight: None,
-            dispatches: 0,
         })
     }
 
@@ -275,7 +270,6 @@ impl GpuBeams {
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &bind, &[(k as u64 * self.chunk_stride) as u32]);
             pass.dispatch_workgroups(c.count.div_ceil(WORKGROUP), 1, 1);
-            self.dispatches += 1;
         }
         let index = self.gpu.queue.submit([enc.finish()]);
         let submitted = Instant::now();
@@ -435,8 +429,8 @@ fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
 
 /// Bindings 0-9 of `beam_estimate.wgsl`; the chunk uniform (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
-    let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| {
-        wgpu::BindGroupLayoutEntry {
+    let entry =
+        |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
             ty: wgpu::BindingType::Buffer {
@@ -445,8 +439,7 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
                 min_binding_size: None,
             },
             count: None,
-        }
-    };
+        };
     let read = wgpu::BufferBindingType::Storage { read_only: true };
     let entries = [
         entry(0, wgpu::BufferBindingType::Uniform, false),
@@ -457,8 +450,16 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         entry(5, read, false),
         entry(6, read, false),
         entry(7, read, false),
-        entry(8, wgpu::BufferBindingType::Storage { read_only: false }, false),
-        entry(9, wgpu::BufferBindingType::Storage { read_only: false }, false),
+        entry(
+            8,
+            wgpu::BufferBindingType::Storage { read_only: false },
+            false,
+        ),
+        entry(
+            9,
+            wgpu::BufferBindingType::Storage { read_only: false },
+            false,
+        ),
     ];
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),

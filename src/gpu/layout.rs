@@ -5,10 +5,10 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::media::grid::Grid;
-use crate::media::{GridMedium, Media};
 use crate::geometry::Ray;
+use crate::media::grid::Grid;
 use crate::media::homogeneous::ray_box;
+use crate::media::{GridMedium, Media};
 use crate::transport::camera::CameraPass;
 use crate::transport::transmittance::SegmentTr;
 use glam::Vec3;
@@ -52,10 +52,10 @@ pub struct GridMeta {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct Params {
-    pub pixels: u32,
     pub radius: f32,
     pub box_count: u32,
     pub grid_count: u32,
+    pub _pad: u32,
     pub boxes: [MediumBox; MAX_BOXES],
     pub grids: [GridMeta; MAX_GRIDS],
 }
@@ -97,10 +97,10 @@ pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
         )));
     }
     let mut p = Params {
-        pixels: 0,
         radius: 0.0,
         box_count: media.media.len() as u32,
         grid_count: media.grids.len() as u32,
+        _pad: 0,
         boxes: [MediumBox::default(); MAX_BOXES],
         grids: [GridMeta::default(); MAX_GRIDS],
     };
@@ -177,7 +177,6 @@ pub struct Segments {
     pub pixel_first: Vec<u32>,
     pub tr_steps: Vec<[f32; 2]>,
 }
-
 
 impl Segments {
     pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> Segments {

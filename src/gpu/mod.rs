@@ -78,9 +78,9 @@ pub fn open(kind: DeviceKind) -> Result<Option<Gpu>> {
         adapters = pollster::block_on(instance.enumerate_adapters(backends));
     }
     adapters.sort_by_key(|a| rank(&a.get_info()));
-    let pick = adapters.into_iter().find(|a| {
-        kind == DeviceKind::Gpu || a.get_info().device_type != wgpu::DeviceType::Cpu
-    });
+    let pick = adapters
+        .into_iter()
+        .find(|a| kind == DeviceKind::Gpu || a.get_info().device_type != wgpu::DeviceType::Cpu);
     let Some(adapter) = pick else {
         return match kind {
             DeviceKind::Gpu => Err(Error::Gpu(
@@ -233,6 +233,10 @@ mod tests {
                 ("grids", offset_of!(Params, grids)),
             ],
         );
-        check("Chunk", size_of::<Chunk>(), &[("count", offset_of!(Chunk, count))]);
+        check(
+            "Chunk",
+            size_of::<Chunk>(),
+            &[("count", offset_of!(Chunk, count))],
+        );
     }
 }

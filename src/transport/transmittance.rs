@@ -107,9 +107,7 @@ impl SegmentTr {
             }
         }
     }
-}
 
-impl SegmentTr {
     /// The estimate as a step function: (t_k, value for t > t_k), t_k ascending, appended
     /// to `out` (before the first step the value is 1). What the GPU estimate reads.
     pub fn steps(&self, out: &mut Vec<[f32; 2]>) {
@@ -117,8 +115,11 @@ impl SegmentTr {
             SegmentTr::Clear => {}
             SegmentTr::FreePaths { lengths, m } => {
                 let m = *m as usize;
-                let mut finite: SmallVec<[f32; MAX_TR_SAMPLES]> =
-                    lengths[..m].iter().copied().filter(|l| l.is_finite()).collect();
+                let mut finite: SmallVec<[f32; MAX_TR_SAMPLES]> = lengths[..m]
+                    .iter()
+                    .copied()
+                    .filter(|l| l.is_finite())
+                    .collect();
                 finite.sort_by(f32::total_cmp);
                 for (k, &l) in finite.iter().enumerate() {
                     out.push([l, (m - k - 1) as f32 / m as f32]);

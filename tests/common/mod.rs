@@ -1,5 +1,51 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests (each test crate uses some of them).
+#![allow(dead_code)]
+use std::path::{Path, PathBuf};
+
 use ppb::gpu::{self, DeviceKind, Gpu};
+
+/// A fresh empty folder under the system temp folder, unique to this process.
+pub fn temp_dir(prefix: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ppb-{prefix}-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A 6 m square floor at y = 0, as OBJ.
+pub const FLOOR: &str =
+    "v -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nvn 0 1 0\nf 1//1 4//1 3//1\nf 1//1 3//1 2//1\n";
+
+/// Writes [`FLOOR`] as `dir/floor.obj`.
+pub fn write_floor(dir: &Path) {
+    std::fs::write(dir.join("floor.obj"), FLOOR).unwrap();
+}
+
+/// A scene over `floor.obj`: `[render]` with the lines `render`, the test camera, a Lambert
+/// floor of grey `reflectance`, then `rest` (lights, media).
+pub fn floor_scene(render: &str, reflectance: f32, rest: &str) -> String {
+    let r = reflectance;
+    format!(
+        r#"[render]
+{render}
+
+[camera]
+origin = [0, 1.5, 5]
+target = [0, 0.8, 0]
+vfov = 40
+
+[[material]]
+name = "floor"
+type = "lambert"
+reflectance = [{r}, {r}, {r}]
+
+[[mesh]]
+path = "floor.obj"
+material = "floor"
+
+{rest}"#
+    )
+}
 
 /// An adapter (software ones included), or None after printing why the test skips;
 /// PPB_REQUIRE_GPU=1 (CI, which installs lavapipe) makes a missing adapter a failure.
