@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Plots `ppb bench-tr --csv` output: rel_l1 vs passes and vs seconds (log-log), one row
-per scene, one colour per configuration. Needs Pillow (pip install pillow).
+per scene and metric (whole image, media region), one colour per configuration. Needs Pillow (pip install pillow).
 Usage: tools/plot_tr.py bench.csv out.png"""
 import csv
 import math
@@ -36,14 +36,17 @@ def panel(draw, ox, oy, curves, xkey, title):
 
 def main():
     rows = list(csv.DictReader(open(sys.argv[1])))
+    metrics = [m for m in ("rel_l1", "rel_l1_media") if m in rows[0]]
     scenes = defaultdict(lambda: defaultdict(list))
     for r in rows:
-        scenes[r["scene"]][r["config"]].append((int(r["passes"]), float(r["seconds"]), float(r["rel_l1"])))
+        for m in metrics:
+            scenes[(r["scene"], m)][r["config"]].append((int(r["passes"]), float(r["seconds"]), float(r[m])))
     img = Image.new("RGB", (2 * W, H * len(scenes) + 30 * 5), "white")
     d = ImageDraw.Draw(img)
-    for k, (scene, curves) in enumerate(scenes.items()):
-        panel(d, 0, k * H, curves, 0, f"{scene}: rel_l1 vs passes")
-        panel(d, W, k * H, curves, 1, f"{scene}: rel_l1 vs wall time")
+    for k, ((scene, m), curves) in enumerate(scenes.items()):
+        what = "rel_l1" if m == "rel_l1" else "rel_l1 in media"
+        panel(d, 0, k * H, curves, 0, f"{scene}: {what} vs passes")
+        panel(d, W, k * H, curves, 1, f"{scene}: {what} vs wall time")
     names = list(next(iter(scenes.values())).keys())
     for i, n in enumerate(names):
         y = H * len(scenes) + 8 + 28 * i

@@ -15,7 +15,7 @@ use crate::output::write_atomic;
 
 const MAGIC: &[u8; 8] = b"PPBOCTR\0";
 /// Bump when the node layout or the build algorithm changes.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 const HEADER: usize = 8 + 4 + 4 + 8 + 32 + 32 + 8;
 
 /// What a cache lookup found.
@@ -34,6 +34,7 @@ pub fn key(g: &GridMedium, max_depth: u32) -> [u8; 32] {
     h.update(&FORMAT_VERSION.to_le_bytes());
     h.update(&max_depth.to_le_bytes());
     h.update(&super::octree::STEP_COST.to_le_bytes());
+    h.update(&super::octree::TENTATIVE_COST.to_le_bytes());
     h.update(&g.source_hash);
     *h.finalize().as_bytes()
 }
@@ -94,13 +95,18 @@ pub fn decode(bytes: &[u8], key: &[u8; 32]) -> std::result::Result<Octree, Strin
         return Err("checksum mismatch (corrupt file)".into());
     }
     let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(payload);
-    if nodes
-        .iter()
-        .any(|n| n.first_child as usize + 8 > nodes.len() && n.first_child != 0)
-    {
+    // Children come after their parent, so a tree read back cannot loop.
+    let bad_child = |(i, n): (usize, &Node)| {
+        n.first_child != 0
+            && (n.first_child as usize <= i || n.first_child as usize + 8 > nodes.len())
+    };
+    if nodes.iter().enumerate().any(bad_child) {
         return Err("child index out of range".into());
     }
-    Ok(Octree { nodes })
+    if nodes.iter().any(|n| n.depth > 8) {
+        return Err("node deeper than 8 levels".into());
+    }
+    Ok(Octree::from_nodes(nodes))
 }
 
 /// Looks the medium's octree up in `dir`.

@@ -3,4 +3,4 @@
 pub mod cache;
 pub mod octree;
 
-pub use octree::{Node, Octree};
+pub use octree::{LeafBounds, Node, Octree};

@@ -4,7 +4,7 @@
 //! with one global majorant. Extinctions add, so the collision is the nearer of the two
 //! parts' free paths.
 use crate::geometry::Ray;
-use crate::majorant::Octree;
+use crate::majorant::{LeafBounds, Octree};
 use crate::media::Media;
 use crate::sampling::Rng;
 use crate::transport::transmittance::RatioSteps;
@@ -58,28 +58,25 @@ pub struct Woodcock<'a> {
     pub media: &'a Media,
 }
 
-/// What a tracking visit decides at a tentative collision.
-type Visit<'a> = &'a mut dyn FnMut(f32, f32, &mut Rng) -> bool;
+/// Bounds of sigma_t over the stretch of ray being tracked (minorant 0 where none is
+/// known, as for global Woodcock).
+type Bounds = LeafBounds;
 
-/// Tentative collisions of rate `majorant` on [t0, t1]; `visit(t, majorant, rng)` returns
+/// What a tracking visit decides at a tentative collision.
+type Visit<'a> = &'a mut dyn FnMut(f32, Bounds, &mut Rng) -> bool;
+
+/// Tentative collisions of rate `b.majorant` on [t0, t1]; `visit(t, b, rng)` returns
 /// false to stop. Returns false if stopped.
-fn track_constant(
-    t0: f32,
-    t1: f32,
-    majorant: f32,
-    tau: &mut f32,
-    rng: &mut Rng,
-    visit: Visit,
-) -> bool {
+fn track_constant(t0: f32, t1: f32, b: Bounds, tau: &mut f32, rng: &mut Rng, visit: Visit) -> bool {
     let mut t = t0;
     loop {
-        let room = (t1 - t) * majorant;
+        let room = (t1 - t) * b.majorant;
         if *tau >= room {
             *tau -= room;
             return true;
         }
-        t += *tau / majorant;
-        if !visit(t, majorant, rng) {
+        t += *tau / b.majorant;
+        if !visit(t, b, rng) {
             return false;
         }
         *tau = -(1.0 - rng.f32()).ln();
@@ -100,7 +97,7 @@ fn track_leaves(
     let mut tau = -(1.0 - rng.f32()).ln();
     tree.walk(ray, tmax, |leaf, a, b| {
         c.octree_steps += 1;
-        leaf.majorant <= 0.0 || track_constant(a, b, leaf.majorant, &mut tau, rng, visit)
+        leaf.majorant <= 0.0 || track_constant(a, b, leaf, &mut tau, rng, visit)
     });
 }
 
@@ -113,7 +110,11 @@ impl Woodcock<'_> {
         let majorant = self.media.grid_majorant();
         if majorant > 0.0 {
             let mut tau = -(1.0 - rng.f32()).ln();
-            track_constant(t0, t1, majorant, &mut tau, rng, visit);
+            let b = Bounds {
+                majorant,
+                minorant: 0.0,
+            };
+            track_constant(t0, t1, b, &mut tau, rng, visit);
         }
     }
 }
@@ -125,9 +126,9 @@ impl FreePath for Woodcock<'_> {
 
     fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
         let mut hit = None;
-        self.track(ray, tmax, rng, &mut |t, majorant, rng| {
+        self.track(ray, tmax, rng, &mut |t, b, rng| {
             c.density_lookups += 1;
-            let real = rng.f32() * majorant < self.media.grid_sigma_t(ray.at(t));
+            let real = rng.f32() * b.majorant < self.media.grid_sigma_t(ray.at(t));
             if real {
                 hit = Some(t);
             }
@@ -144,9 +145,9 @@ impl FreePath for Woodcock<'_> {
         c: &mut Counters,
         out: &mut RatioSteps,
     ) {
-        self.track(ray, tmax, rng, &mut |t, majorant, _| {
+        self.track(ray, tmax, rng, &mut |t, b, _| {
             c.density_lookups += 1;
-            let f = (1.0 - self.media.grid_sigma_t(ray.at(t)) / majorant).max(0.0);
+            let f = (1.0 - self.media.grid_sigma_t(ray.at(t)) / b.majorant).max(0.0);
             out.push((t, f));
             f > 0.0
         });
@@ -155,7 +156,8 @@ impl FreePath for Woodcock<'_> {
 
 /// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
 /// majorant octree front to back, with delta tracking inside each leaf at the leaf's own
-/// majorant; empty leaves cost one step. Tentative collisions are a Poisson process of
+/// majorant; empty leaves cost one step. A tentative collision whose uniform falls below
+/// the leaf's minorant is real without a density lookup (sigma_t >= minorant there). Tentative collisions are a Poisson process of
 /// rate majorant(t), so the free-path distribution is exactly global Woodcock's. Grids are
 /// tracked independently and the nearest collision wins (extinctions add).
 pub struct Adaptive<'a> {
@@ -173,16 +175,24 @@ impl FreePath for Adaptive<'_> {
         let mut best: Option<f32> = None;
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
             let limit = best.unwrap_or(tmax);
-            let mut lookups = 0;
-            track_leaves(tree, ray, limit, rng, c, &mut |t, majorant, rng| {
-                lookups += 1;
-                let real = rng.f32() * majorant < g.sigma_t(ray.at(t));
+            let (mut lookups, mut accepts) = (0, 0);
+            track_leaves(tree, ray, limit, rng, c, &mut |t, b, rng| {
+                // Below the leaf's minorant a collision is real whatever the density.
+                let u = rng.f32() * b.majorant;
+                let real = if u < b.minorant {
+                    accepts += 1;
+                    true
+                } else {
+                    lookups += 1;
+                    u < g.sigma_t(ray.at(t))
+                };
                 if real {
                     best = Some(t);
                 }
                 !real
             });
             c.density_lookups += lookups;
+            c.minorant_accepts += accepts;
         }
         best
     }
@@ -197,9 +207,9 @@ impl FreePath for Adaptive<'_> {
     ) {
         for (g, tree) in self.media.grids.iter().zip(self.octrees) {
             let mut lookups = 0;
-            track_leaves(tree, ray, tmax, rng, c, &mut |t, majorant, _| {
+            track_leaves(tree, ray, tmax, rng, c, &mut |t, b, _| {
                 lookups += 1;
-                let f = (1.0 - g.sigma_t(ray.at(t)) / majorant).max(0.0);
+                let f = (1.0 - g.sigma_t(ray.at(t)) / b.majorant).max(0.0);
                 out.push((t, f));
                 f > 0.0
             });

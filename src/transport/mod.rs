@@ -76,6 +76,8 @@ pub struct Counters {
     pub density_lookups: u64,
     /// Octree leaves entered by adaptive tracking.
     pub octree_steps: u64,
+    /// Tentative collisions found real below a leaf's minorant, without a lookup.
+    pub minorant_accepts: u64,
     pub camera_rays: u64,
     pub beam_evaluations: u64,
     pub photon_lookups: u64,
@@ -96,6 +98,7 @@ impl Counters {
         self.free_paths += o.free_paths;
         self.density_lookups += o.density_lookups;
         self.octree_steps += o.octree_steps;
+        self.minorant_accepts += o.minorant_accepts;
         self.camera_rays += o.camera_rays;
         self.beam_evaluations += o.beam_evaluations;
         self.photon_lookups += o.photon_lookups;
