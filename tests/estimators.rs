@@ -160,3 +160,44 @@ fn passes_do_not_depend_on_thread_count() {
     assert!(one[0].iter().any(|p| p.x > 0.0));
     assert_eq!(one, two);
 }
+
+/// The media-region mask of `ppb bench-tr`: each pixel's optical depth up to the floor,
+/// against the analytic chord of the homogeneous box (sigma_t = 1).
+#[test]
+fn camera_optical_depths_match_box_chords() {
+    let (w, h) = (40u32, 30u32);
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        ..Default::default()
+    };
+    let scene = small_scene();
+    let depths = Renderer::new(&scene, settings)
+        .unwrap()
+        .camera_optical_depths();
+    let cam = ppb::transport::camera::Pinhole::new(&scene.camera, w, h);
+    let media = Media::new(scene.media.clone());
+    let (mut inside, mut outside) = (0, 0);
+    for (i, &tau) in depths.iter().enumerate() {
+        let ray = cam.ray((i as u32 % w) as f32 + 0.5, (i as u32 / w) as f32 + 0.5);
+        // The floor is the plane y = 0 inside |x|, |z| <= 3.
+        let t = -ray.o.y / ray.d.y;
+        let p = ray.at(t);
+        let t_floor = if t > 0.0 && p.x.abs() <= 3.0 && p.z.abs() <= 3.0 {
+            t
+        } else {
+            f32::MAX
+        };
+        let exact = media.optical_depth(&ray, 0.0, t_floor);
+        assert!(
+            (tau - exact).abs() <= 1e-4 * exact.max(1.0),
+            "pixel {i}: {tau} vs {exact}"
+        );
+        if exact > 0.0 {
+            inside += 1;
+        } else {
+            outside += 1;
+        }
+    }
+    assert!(inside > 100 && outside > 100, "{inside} in, {outside} out");
+}
