@@ -78,7 +78,7 @@ print fresh or stale per medium and exit 1 if any is stale."
 sampling work: free paths, density (grid) lookups, lookups per free path (a machine-independent \
 counter), and free paths and lookups per thread-second."
     )]
-    Bench(app::BenchArgs),
+    Bench(app::BenchTableArgs),
     /// Transmittance benchmark: error vs passes and at equal time (the paper's Figs. 11, 12).
     #[command(
         long_about = "Renders each scene with woodcock+random (the original PPB), \

@@ -294,3 +294,39 @@ fn octree_cache_lifecycle() {
     let (code, out, _) = ppb_in(&["build", "--check"], &s);
     assert_eq!(code, 1, "{out}");
 }
+
+/// `ppb bench --repeat 2` on a tiny render of smoke-grid: one row per scene, both samplers'
+/// counters, and the repeat count in the legend.
+#[test]
+fn bench_table_with_repeats() {
+    let scene =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance/smoke-grid/scene.toml");
+    let o = ppb()
+        .args([
+            "bench", "--passes", "1", "--size", "16x16", "--beams", "2000", "--repeat", "2",
+        ])
+        .arg(&scene)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("median of 2 runs"), "{out}");
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("smoke-grid"))
+        .expect("a row for the scene");
+    let cols: Vec<&str> = row.split_whitespace().collect();
+    // lookups per free path: Woodcock's above adaptive's.
+    let (w, a): (f64, f64) = (cols[8].parse().unwrap(), cols[9].parse().unwrap());
+    assert!(w > a && a > 0.0, "{row}");
+    let bad = ppb()
+        .args(["bench", "--repeat", "0"])
+        .arg(&scene)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+}
