@@ -5,9 +5,9 @@
 //! cost model of tracking work, solved exactly over a full pyramid of depth `max_depth`:
 //! a ray crossing a leaf pays one traversal step plus its expected tentative collisions,
 //! majorant x mean chord (4V/S for a box): those drawn below the minorant are decided
-//! without a lookup and cost [`TENTATIVE_COST`], the others one lookup; a split node pays the sum over its
-//! children of (probability a ray through the parent crosses the child = S_child / S_parent)
-//! x the child's best cost. Bottom-up dynamic programming picks, for every node, the
+//! without a lookup and cost [`TENTATIVE_COST`], the others one lookup; a split node pays
+//! the sum over its children of (probability a ray through the parent crosses the child =
+//! S_child / S_parent) x the child's best cost. Bottom-up dynamic programming picks, for every node, the
 //! cheaper of the two; the result minimises expected lookups per ray crossing the root
 //! under that model, within the depth limit.
 use bytemuck::{Pod, Zeroable};
@@ -20,9 +20,9 @@ use crate::media::GridMedium;
 
 /// Default pyramid depth: 64^3 finest cells.
 pub const DEFAULT_MAX_DEPTH: u32 = 6;
-/// Work of one traversal step, in units of one density lookup (measured: a step of the
-/// walk costs 0.5 to 0.8 lookups here; 1 gave the fewest ns per free path on the dense
-/// smoke among 0.25, 0.5, 1 and 2, as a coarser tree also crosses fewer leaves).
+/// Work of one traversal step, in units of one density lookup. In a micro-benchmark of
+/// free paths in the dense smoke (smoke-grid x 40), 1 gave the fewest ns per free path
+/// among 0.25, 0.5, 1 and 2: smaller values buy fewer lookups with more leaf steps.
 pub const STEP_COST: f32 = 1.0;
 /// Work of a tentative collision decided by the minorant (a random number and a
 /// logarithm, no lookup), in lookups.
@@ -77,8 +77,8 @@ const INDEX_MASK: u32 = (1 << DEPTH_SHIFT) - 1;
 /// Point location for the walk, derived from the nodes when a tree is made or loaded and
 /// never stored. A uniform grid of cells over the root at the leaves' deepest level (at
 /// most [`INDEX_MAX_LEVEL`]) names each cell's leaf and depth; the leaf's bounds sit in a
-/// compact array and its box follows from the cell and depth. Two small reads per leaf
-/// instead of a chain of node reads from the root: the walk is bound by memory latency.
+/// compact array and its box follows from the cell and depth: two small reads per leaf
+/// instead of a chain of dependent node reads from the root.
 #[derive(Clone, Debug, PartialEq)]
 struct CellIndex {
     level: u32,

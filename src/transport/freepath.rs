@@ -156,9 +156,10 @@ impl FreePath for Woodcock<'_> {
 
 /// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
 /// majorant octree front to back, with delta tracking inside each leaf at the leaf's own
-/// majorant; empty leaves cost one step. A tentative collision whose uniform falls below
-/// the leaf's minorant is real without a density lookup (sigma_t >= minorant there). Tentative collisions are a Poisson process of
-/// rate majorant(t), so the free-path distribution is exactly global Woodcock's. Grids are
+/// majorant; empty leaves cost one step. Tentative collisions are a Poisson process of rate
+/// majorant(t), so the free-path distribution is exactly global Woodcock's. A tentative
+/// collision whose uniform falls below the leaf's minorant is real without a density
+/// lookup (sigma_t >= minorant there): the same decision, one lookup fewer. Grids are
 /// tracked independently and the nearest collision wins (extinctions add).
 pub struct Adaptive<'a> {
     pub media: &'a Media,
