@@ -437,12 +437,15 @@ fn write_film(
     scene: &Path,
     extra: &[(String, String)],
 ) -> Result<()> {
-    let img = Image {
-        width: film.width as usize,
-        height: film.height as usize,
-        pixels: film.image(),
-    };
-    write_outputs_meta(out, &img, film.passes(), s, seconds, scene, extra)
+    write_outputs_meta(
+        out,
+        &film.mean_image(),
+        film.passes(),
+        s,
+        seconds,
+        scene,
+        extra,
+    )
 }
 
 /// [`write_outputs`] with `extra` header attributes (e.g. `ppb watch`'s reload number).
@@ -737,9 +740,10 @@ const TR_CONFIGS: [(&str, Mode, TrMode); 5] = [
 fn render_checkpoints(
     file: &scene_toml::SceneFile,
     settings: &ppb::settings::RenderSettings,
+    octrees: &[Octree],
     checkpoints: &[u32],
 ) -> Result<Vec<(u32, f64, Image)>> {
-    let r = Renderer::new(&file.scene, settings.clone())?;
+    let r = Renderer::with_octrees(&file.scene, settings.clone(), octrees.to_vec())?;
     let mut film = Film::new(settings.width, settings.height);
     let mut out = Vec::new();
     let start = Instant::now();
@@ -747,12 +751,7 @@ fn render_checkpoints(
     for i in 1..=max {
         film.add_pass(&r.pass(i).image);
         if checkpoints.contains(&i) {
-            let img = Image {
-                width: film.width as usize,
-                height: film.height as usize,
-                pixels: film.image(),
-            };
-            out.push((i, start.elapsed().as_secs_f64(), img));
+            out.push((i, start.elapsed().as_secs_f64(), film.mean_image()));
         }
     }
     Ok(out)
@@ -784,7 +783,14 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
         };
         let file = scene_toml::load(&scene)?;
         let mut base = file.settings.clone();
-        let full = Renderer::new(&file.scene, base.clone())?;
+        // One bake per scene: the octrees do not depend on the render settings varied here.
+        let octrees: Vec<Octree> = file
+            .scene
+            .grid_media
+            .iter()
+            .map(|g| Octree::build(g, base.octree_depth))
+            .collect();
+        let full = Renderer::with_octrees(&file.scene, base.clone(), octrees.clone())?;
         // Keep the full-resolution radii so the kernels blur the same world distance.
         base.beam_radius = ppb::settings::Radius::Fixed(full.beam_r1);
         base.photon_radius = ppb::settings::Radius::Fixed(full.photon_r1);
@@ -824,7 +830,9 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
                     "{}: rendering a reference with {passes} passes",
                     scene.display()
                 );
-                let img = render_checkpoints(&file, &s, &[passes])?.remove(0).2;
+                let img = render_checkpoints(&file, &s, &octrees, &[passes])?
+                    .remove(0)
+                    .2;
                 (
                     img,
                     format!("ppb adaptive+ratio, {passes} passes, other seed"),
@@ -832,11 +840,12 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
             }
         };
         // Pixels outside the media region are skipped by the second metric.
-        let outside: Vec<bool> = Renderer::new(&file.scene, base.clone())?
-            .camera_optical_depths()
-            .iter()
-            .map(|&tau| tau < args.media_depth)
-            .collect();
+        let outside: Vec<bool> =
+            Renderer::with_octrees(&file.scene, base.clone(), octrees.clone())?
+                .camera_optical_depths()
+                .iter()
+                .map(|&tau| tau < args.media_depth)
+                .collect();
         let in_media = outside.iter().filter(|&&o| !o).count();
         println!(
             "\n{} at {}x{}; reference: {ref_note}; media region: {in_media} pixels with optical depth >= {}",
@@ -855,7 +864,7 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
             s.free_path = mode;
             s.tr_mode = tr;
             let mut curve = Vec::new();
-            for (passes, secs, img) in render_checkpoints(&file, &s, &checkpoints)? {
+            for (passes, secs, img) in render_checkpoints(&file, &s, &octrees, &checkpoints)? {
                 let e = metrics(&img, &reference, None)?.rel_l1;
                 let em = metrics(&img, &reference, Some(&outside))?.rel_l1;
                 println!("{name:<24} {passes:>7} {secs:>9.2} {e:>9.4} {em:>12.4}");
@@ -1066,14 +1075,7 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
         for i in 1..=args.bench.passes {
             let t = r.trace(i, true);
             let start = Instant::now();
-            let (cpu, evals) = ppb::estimate::cpu::beam_image(
-                r.camera(),
-                r.media(),
-                &t.camera,
-                &t.beams,
-                t.beam_map.as_ref(),
-                t.beam_radius,
-            );
+            let (cpu, evals) = r.beam_image(&t);
             cpu_s += start.elapsed().as_secs_f64();
             pairs += evals;
             est.clear()?;

@@ -33,6 +33,15 @@ impl Film {
         self.passes
     }
 
+    /// The current estimate as an image (for output and comparison).
+    pub fn mean_image(&self) -> crate::output::Image {
+        crate::output::Image {
+            width: self.width as usize,
+            height: self.height as usize,
+            pixels: self.image(),
+        }
+    }
+
     /// The current estimate: mean over passes, row-major RGB.
     pub fn image(&self) -> Vec<[f32; 3]> {
         let inv = 1.0 / self.passes.max(1) as f64;

@@ -247,17 +247,23 @@ impl Renderer {
         }
     }
 
-    /// Finishes a traced pass with the beam estimate on the CPU.
-    pub fn estimate_cpu(&self, t: TracedPass) -> PassResult {
-        let start = Instant::now();
-        let (beam_img, evals) = cpu::beam_image(
+    /// The beam estimate of a traced pass on the CPU alone (without the camera paths'
+    /// photon estimate), with its count of beam evaluations.
+    pub fn beam_image(&self, t: &TracedPass) -> (Vec<Rgb>, u64) {
+        cpu::beam_image(
             &self.camera,
             &self.media,
             &t.camera,
             &t.beams,
             t.beam_map.as_ref(),
             t.beam_radius,
-        );
+        )
+    }
+
+    /// Finishes a traced pass with the beam estimate on the CPU.
+    pub fn estimate_cpu(&self, t: TracedPass) -> PassResult {
+        let start = Instant::now();
+        let (beam_img, evals) = self.beam_image(&t);
         let mut image = t.camera.image;
         for (a, b) in image.iter_mut().zip(beam_img) {
             *a += b;

@@ -9,7 +9,6 @@ use std::path::Path;
 use std::process::Command;
 
 use ppb::compare::DeviceDiff;
-use ppb::estimate::cpu::beam_image;
 use ppb::gpu::beams::GpuBeams;
 use ppb::render::Renderer;
 use ppb::scene::toml::load;
@@ -39,14 +38,7 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
     };
     for &i in passes {
         let t = r.trace(i, true);
-        let (cpu, evals) = beam_image(
-            r.camera(),
-            r.media(),
-            &t.camera,
-            &t.beams,
-            t.beam_map.as_ref(),
-            t.beam_radius,
-        );
+        let (cpu, evals) = r.beam_image(&t);
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
         out.diff.add(&cpu, &est.read().expect("read back").0);
