@@ -201,15 +201,16 @@ impl Renderer {
             Mode::Woodcock => &woodcock,
         };
         let t0 = Instant::now();
+        let beam_r = radius::beam_radius(self.beam_r1, i, s.alpha);
         let lt = LightTracer {
             lights: &self.lights,
             geometry: &self.geometry,
             media: &self.media,
             free_path,
+            beam_margin: beam_r,
         };
         let light = lt.trace_pass(s.seed, i, s.beams_per_pass);
         let t1 = Instant::now();
-        let beam_r = radius::beam_radius(self.beam_r1, i, s.alpha);
         let beam_map = ((beam_map || self.has_specular) && !self.media.is_empty())
             .then(|| BeamMap::build(&light.beams, beam_r));
         let photons = PhotonMap::build(

@@ -41,6 +41,7 @@ fn single_scattering_matches_quadrature() {
         geometry: &geometry,
         media: &media,
         free_path: &fp,
+        beam_margin: 0.02,
     };
     let ray = Ray::new(Vec3::new(-1.9, 0.3, 0.1), Vec3::X);
     let t1 = 3.8f32;

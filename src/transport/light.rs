@@ -131,6 +131,9 @@ pub struct LightTracer<'a> {
     pub geometry: &'a Geometry,
     pub media: &'a Media,
     pub free_path: &'a dyn FreePath,
+    /// How far (m) a beam reaches past each medium boundary it crosses: the pass's beam
+    /// radius. See [`LightTracer::store_beams`].
+    pub beam_margin: f32,
 }
 
 /// One pass worth of light-path records.
@@ -237,12 +240,37 @@ impl LightTracer<'_> {
         }
     }
 
+    /// Stores the ray's stretches in media up to `t_end`, each reaching up to
+    /// [`Self::beam_margin`] past the medium boundaries it crosses (never before the ray's
+    /// origin nor past `t_end`). The kernel of eq. 2 reaches a beam's points within the
+    /// radius of a camera point, so a camera point just inside a face would otherwise
+    /// average the fluence with the empty outside and lose up to half of it (a bias of order
+    /// r at every face a view ray crosses). Outside the media the path's fluence is the same
+    /// as at the face (nothing attenuates it), and camera points there have sigma_s = 0, so
+    /// the extension removes that bias and adds nothing else.
     fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
+        let m = self.beam_margin;
+        let mut pending: Option<(f32, f32)> = None;
         for (a, b) in self.media.spans(ray, t_end) {
-            out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
-            out.counters.beams += 1;
+            let (a, b) = ((a - m).max(0.0), (b + m).min(t_end));
+            match &mut pending {
+                Some(p) if a <= p.1 => p.1 = p.1.max(b),
+                _ => {
+                    if let Some((a0, b0)) = pending.replace((a, b)) {
+                        push_beam(ray, a0, b0, power, out);
+                    }
+                }
+            }
+        }
+        if let Some((a, b)) = pending {
+            push_beam(ray, a, b, power, out);
         }
     }
+}
+
+fn push_beam(ray: &Ray, a: f32, b: f32, power: Rgb, out: &mut LightPass) {
+    out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
+    out.counters.beams += 1;
 }
 
 /// Whether a path leaving a surface along `dir` travels inside a dielectric: meshes are
