@@ -13,8 +13,8 @@ use glam::Vec3;
 /// A photon beam (Jarosz et al. 2011, "short beam"): the stretch of a light path inside
 /// media, from `origin` along unit `dir` for `length` m, ending where the path collided or
 /// left the media (reaching one beam radius past the faces it crosses, see
-/// `LightTracer::store_beams`). Its power is the path's power at `origin`, not attenuated along it: the
-/// free-path sampling that ended it already accounts for the transmittance.
+/// `LightTracer::store_beams`). Its power is the path's power at `origin`, not attenuated
+/// along it: the free-path sampling that ended it already accounts for the transmittance.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Beam {
