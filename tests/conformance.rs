@@ -28,18 +28,11 @@ fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) ->
     render_on(scene, seed, passes, paths, mode, None)
 }
 
-/// Renders with the beam estimate on `gpu` (None: the CPU).
-fn render_on(
-    scene: &str,
-    seed: u64,
-    passes: u32,
-    paths: usize,
-    mode: Mode,
-    gpu: Option<Gpu>,
-) -> Image {
+/// The scene at 1/BLOCK of its resolution, with the radii the full-resolution render would
+/// use: blocks of the reference are compared, so the kernel must not blur more than the
+/// full-resolution render does.
+fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Renderer {
     let file = load(&data(scene)).expect("scene loads");
-    // The radii the full-resolution render would use: blocks of the reference are
-    // compared, so the kernel must not blur more than the full-resolution render does.
     let full = Renderer::new(&file.scene, file.settings.clone()).expect("renderer");
     let mut s = file.settings.clone();
     s.beam_radius = Radius::Fixed(full.beam_r1);
@@ -49,7 +42,19 @@ fn render_on(
     s.height /= BLOCK as u32;
     s.seed = seed;
     s.beams_per_pass = paths;
-    let r = Renderer::new(&file.scene, s).expect("renderer");
+    Renderer::new(&file.scene, s).expect("renderer")
+}
+
+/// Renders with the beam estimate on `gpu` (None: the CPU).
+fn render_on(
+    scene: &str,
+    seed: u64,
+    passes: u32,
+    paths: usize,
+    mode: Mode,
+    gpu: Option<Gpu>,
+) -> Image {
+    let r = quarter_renderer(scene, seed, paths, mode);
     let mut acc = Progressive::new(&r, gpu).expect("estimator");
     for i in 1..=passes {
         acc.pass(&r, i).expect("pass");
@@ -205,16 +210,9 @@ fn fog_near_light_matches_reference() {
 #[test]
 fn fog_near_light_rows_under_the_light() {
     const ROWS: usize = 48 / BLOCK;
-    let file = load(&data("scenes/conformance/fog-near-light/scene.toml")).expect("scene");
-    let full = Renderer::new(&file.scene, file.settings.clone()).expect("renderer");
-    let mut s = file.settings.clone();
-    s.beam_radius = Radius::Fixed(full.beam_r1);
-    s.photon_radius = Radius::Fixed(full.photon_r1);
-    s.width /= BLOCK as u32;
-    s.height /= BLOCK as u32;
-    s.beams_per_pass = 20_000;
-    let w = s.width as usize;
-    let r = Renderer::new(&file.scene, s).expect("renderer");
+    let scene = "scenes/conformance/fog-near-light/scene.toml";
+    let r = quarter_renderer(scene, 1, 20_000, Mode::Adaptive);
+    let w = r.settings.width as usize;
     let skip = block_mask("tests/data/conformance/fog-near-light/emitter_mask.png");
     let band = |px: &dyn Fn(usize) -> f64| {
         let kept: Vec<usize> = (0..ROWS * w).filter(|&i| !skip[i]).collect();

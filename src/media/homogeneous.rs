@@ -117,12 +117,19 @@ impl Media {
 
     /// Merged spans of the ray inside any medium box (homogeneous or grid), front to back.
     pub fn spans(&self, ray: &Ray, tmax: f32) -> SmallVec<[(f32, f32); 4]> {
+        self.padded_spans(ray, tmax, 0.0)
+    }
+
+    /// [`Self::spans`] with each box's span widened by `pad` (m) on both sides, within
+    /// [0, tmax], before spans that then overlap are merged.
+    pub fn padded_spans(&self, ray: &Ray, tmax: f32, pad: f32) -> SmallVec<[(f32, f32); 4]> {
         let mut spans: SmallVec<[(f32, f32); 4]> = self
             .media
             .iter()
             .map(|m| m.bounds)
             .chain(self.grids.iter().map(|g| g.bounds))
             .filter_map(|b| ray_box(ray, &b, 0.0, tmax))
+            .map(|(a, b)| ((a - pad).max(0.0), (b + pad).min(tmax)))
             .collect();
         spans.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut out: SmallVec<[(f32, f32); 4]> = SmallVec::new();
@@ -231,6 +238,28 @@ mod tests {
             albedo: Vec3::ONE,
             phase: Phase::ISOTROPIC,
         }
+    }
+
+    /// Padding widens each box's span within [0, tmax] and merges spans it makes overlap.
+    #[test]
+    fn padded_spans_merge_and_clamp() {
+        let media = Media::new(vec![
+            fog([0.0, -1.0, -1.0], [1.0, 1.0, 1.0], 1.0),
+            fog([1.3, -1.0, -1.0], [2.0, 1.0, 1.0], 1.0),
+        ]);
+        let ray = Ray::new(Vec3::new(-0.1, 0.0, 0.0), Vec3::X);
+        let near = |a: &[(f32, f32)], b: &[(f32, f32)]| {
+            a.len() == b.len()
+                && a.iter()
+                    .zip(b)
+                    .all(|(x, y)| (x.0 - y.0).abs() < 1e-5 && (x.1 - y.1).abs() < 1e-5)
+        };
+        let plain = media.spans(&ray, 1.8);
+        assert!(near(&plain, &[(0.1, 1.1), (1.4, 1.8)]), "{plain:?}");
+        let padded = media.padded_spans(&ray, 1.8, 0.2);
+        assert!(near(&padded, &[(0.0, 1.8)]), "{padded:?}");
+        let thin = media.padded_spans(&ray, 10.0, 0.1);
+        assert!(near(&thin, &[(0.0, 1.2), (1.3, 2.2)]), "{thin:?}");
     }
 
     #[test]

@@ -249,28 +249,11 @@ impl LightTracer<'_> {
     /// as at the face (nothing attenuates it), and camera points there have sigma_s = 0, so
     /// the extension removes that bias and adds nothing else.
     fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
-        let m = self.beam_margin;
-        let mut pending: Option<(f32, f32)> = None;
-        for (a, b) in self.media.spans(ray, t_end) {
-            let (a, b) = ((a - m).max(0.0), (b + m).min(t_end));
-            match &mut pending {
-                Some(p) if a <= p.1 => p.1 = p.1.max(b),
-                _ => {
-                    if let Some((a0, b0)) = pending.replace((a, b)) {
-                        push_beam(ray, a0, b0, power, out);
-                    }
-                }
-            }
-        }
-        if let Some((a, b)) = pending {
-            push_beam(ray, a, b, power, out);
+        for (a, b) in self.media.padded_spans(ray, t_end, self.beam_margin) {
+            out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
+            out.counters.beams += 1;
         }
     }
-}
-
-fn push_beam(ray: &Ray, a: f32, b: f32, power: Rgb, out: &mut LightPass) {
-    out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
-    out.counters.beams += 1;
 }
 
 /// Whether a path leaving a surface along `dir` travels inside a dielectric: meshes are
