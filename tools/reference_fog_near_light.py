@@ -5,7 +5,7 @@ Why: the shipped reference (../shared/conformance/fog-near-light/reference.exr) 
 where view rays leave the fog under the sphere light (2-3x at rows 12-15, column ~210):
 Mitsuba's next-event shadow rays from fog near the light are blocked by the light's own opaque
 sphere. With a `null` BSDF on that sphere, or a point light at its centre, Mitsuba gives the
-physically expected radiance, which ppb's quadrature tests (tests/near_light.rs) and ppb's
+physically expected radiance, which ppb's quadrature tests (tests/single_scattering.rs) and ppb's
 render agree with. Likely mechanism (inferred, not traced in Mitsuba's code): a shadow ray
 re-spawned where it crosses the fog box's null boundary starts about 3e-4 m further along
 than its remaining distance assumes, which within about 0.3 m of the light exceeds the
