@@ -20,26 +20,23 @@ impl Film {
         }
     }
 
-    pub fn add_pass(&mut self, img: &[Rgb]) {
+    /// Adds `img` to the current pass's sums (one pass adds several estimates).
+    pub fn add(&mut self, img: &[Rgb]) {
         for (s, p) in self.sum.iter_mut().zip(img) {
             s[0] += p.x as f64;
             s[1] += p.y as f64;
             s[2] += p.z as f64;
         }
+    }
+
+    /// Adds `img` and counts a pass.
+    pub fn add_pass(&mut self, img: &[Rgb]) {
+        self.add(img);
         self.passes += 1;
     }
 
     pub fn passes(&self) -> u32 {
         self.passes
-    }
-
-    /// The current estimate as an image (for output and comparison).
-    pub fn mean_image(&self) -> crate::output::Image {
-        crate::output::Image {
-            width: self.width as usize,
-            height: self.height as usize,
-            pixels: self.image(),
-        }
     }
 
     /// The current estimate: mean over passes, row-major RGB.

@@ -1,9 +1,11 @@
 //! ppb: progressive photon beams with adaptive free-path sampling.
 //!
-//! Data flow, one module per stage: [`scene`] import -> [`media`] -> [`transport`] (light
-//! tracing into beams and photons, camera paths) -> [`estimate`] (beam and photon radiance
-//! estimates, radius schedule) -> [`film`] (progressive average) -> [`output`] (EXR/PNG).
-//! [`render`] runs one pass of that chain.
+//! Data flow, one module per stage: [`scene`] import -> [`media`] (each grid owning its
+//! [`majorant`] octree) -> [`transport`] (light tracing into beams and photons, camera
+//! paths and transmittance) -> [`estimate`] (beam and photon radiance estimates on the CPU
+//! or, through [`gpu`], on the GPU) -> [`film`] (progressive average) -> [`output`]
+//! (EXR/PNG). [`pass`] traces one pass of that chain as [`plan`] defines it; [`session`]
+//! is the one loop that accumulates passes, which every command drives.
 pub mod bsdf;
 pub mod compare;
 pub mod error;
@@ -14,10 +16,11 @@ pub mod gpu;
 pub mod majorant;
 pub mod media;
 pub mod output;
-pub mod progressive;
-pub mod render;
+pub mod pass;
+pub mod plan;
 pub mod sampling;
 pub mod scene;
+pub mod session;
 pub mod settings;
 pub mod transport;
 pub mod watch;

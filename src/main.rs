@@ -43,9 +43,11 @@ Reloaded: only what changed. A camera, light, material or settings edit re-reads
 reuses the loaded meshes, grids and octrees; a changed asset is read again; a changed grid gets \
 a new octree through the cache (.ppb-cache/, rebuilt only on a miss) while the other media keep \
 theirs. An exposure-only edit keeps the image. Any other change restarts the accumulation, which \
-refines until the pass budget (--passes, default [render].passes, 0 = forever); passes 1-3 \
-after a reload trace 1/8, 1/4 and 1/2 of the light paths so the first preview comes fast \
-(--no-ramp: all of them). Reloads are applied between passes.\n\n\
+refines until the pass budget (--passes, default [render].passes, 0 = forever). After a \
+reload the first pass traces 1/8 of the light paths and each next one twice as many while a \
+pass takes under 0.15 s, up to all of them, so the first preview comes fast and passes stay \
+short (--no-ramp: all of them from the first). Reloads are applied between passes. \
+--device gpu|auto estimates beams on the GPU as `ppb render` does.\n\n\
 Errors: a syntax error, a missing or truncated asset or a file caught mid-write prints one line \
 with the file and line, and the last good scene keeps rendering until the file is fixed. The \
 EXR and PNG are rewritten atomically (after the first pass of each reload, then every \

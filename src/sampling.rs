@@ -23,6 +23,8 @@ pub enum Stream {
     CameraJitter = 3,
     /// The free paths drawn for a stratified block.
     TrBlock = 4,
+    /// The order in which a stratified cycle's passes use each stratum.
+    TrCycle = 5,
 }
 
 /// SplitMix64 finaliser: turns structured keys into well-spread seeds.

@@ -14,7 +14,7 @@ pub struct RenderSettings {
     /// Number of progressive passes (each: one light pass + one camera pass).
     pub passes: u32,
     /// Light paths traced per pass.
-    pub beams_per_pass: usize,
+    pub light_paths: usize,
     /// Radius reduction parameter of eq. 3, in (0, 1).
     pub alpha: f32,
     pub beam_radius: Radius,
@@ -39,7 +39,7 @@ impl Default for RenderSettings {
             width: 256,
             height: 256,
             passes: 64,
-            beams_per_pass: 100_000,
+            light_paths: 100_000,
             alpha: 0.9,
             beam_radius: Radius::Auto,
             photon_radius: Radius::Auto,

@@ -14,7 +14,7 @@ fn ppb() -> Command {
 /// A small valid scene; `extra` is appended to it.
 fn scene(dir: &Path, extra: &str) -> PathBuf {
     write_floor(dir);
-    let render = "width = 24\nheight = 16\npasses = 2\nbeams_per_pass = 2000";
+    let render = "width = 24\nheight = 16\npasses = 2\nlight_paths = 2000";
     let rest = format!(
         r#"[[light]]
 type = "point"
@@ -303,7 +303,15 @@ fn bench_table_with_repeats() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance/smoke-grid/scene.toml");
     let o = ppb()
         .args([
-            "bench", "--passes", "1", "--size", "16x16", "--beams", "2000", "--repeat", "2",
+            "bench",
+            "--passes",
+            "1",
+            "--size",
+            "16x16",
+            "--light-paths",
+            "2000",
+            "--repeat",
+            "2",
         ])
         .arg(&scene)
         .output()

@@ -12,9 +12,9 @@ use std::path::Path;
 use ppb::compare::{block_mean, compare, read_mask};
 use ppb::gpu::Gpu;
 use ppb::output::{read_exr, Image};
-use ppb::progressive::Progressive;
-use ppb::render::Renderer;
+use ppb::pass::Tracer;
 use ppb::scene::toml::load;
+use ppb::session::Session;
 use ppb::settings::Radius;
 use ppb::transport::freepath::Mode;
 
@@ -31,9 +31,9 @@ fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) ->
 /// The scene at 1/BLOCK of its resolution, with the radii the full-resolution render would
 /// use: blocks of the reference are compared, so the kernel must not blur more than the
 /// full-resolution render does.
-fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Renderer {
+fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Tracer {
     let file = load(&data(scene)).expect("scene loads");
-    let full = Renderer::new(&file.scene, file.settings.clone()).expect("renderer");
+    let full = Tracer::new(&file.scene, file.settings.clone()).expect("renderer");
     let mut s = file.settings.clone();
     s.beam_radius = Radius::Fixed(full.beam_r1);
     s.photon_radius = Radius::Fixed(full.photon_r1);
@@ -41,8 +41,8 @@ fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Rendere
     s.width /= BLOCK as u32;
     s.height /= BLOCK as u32;
     s.seed = seed;
-    s.beams_per_pass = paths;
-    Renderer::new(&file.scene, s).expect("renderer")
+    s.light_paths = paths;
+    Tracer::new(&file.scene, s).expect("renderer")
 }
 
 /// Renders with the beam estimate on `gpu` (None: the CPU).
@@ -55,11 +55,8 @@ fn render_on(
     gpu: Option<Gpu>,
 ) -> Image {
     let r = quarter_renderer(scene, seed, paths, mode);
-    let mut acc = Progressive::new(&r, gpu).expect("estimator");
-    for i in 1..=passes {
-        acc.pass(&r, i).expect("pass");
-    }
-    acc.image().expect("image")
+    let mut session = Session::open(r, gpu).expect("estimator");
+    session.render(passes).expect("render")
 }
 
 /// The blocks of a full-resolution emitter mask that hold any masked pixel.
@@ -217,6 +214,7 @@ fn fog_near_light_rows_under_the_light() {
     let scene = "scenes/conformance/fog-near-light/scene.toml";
     let r = quarter_renderer(scene, 1, 20_000, Mode::Adaptive);
     let w = r.settings.width as usize;
+    let mut session = Session::cpu(r);
     let skip = block_mask("tests/data/conformance/fog-near-light/emitter_mask.png");
     let band = |px: &dyn Fn(usize) -> f64| {
         let kept: Vec<usize> = (0..ROWS * w).filter(|&i| !skip[i]).collect();
@@ -225,8 +223,8 @@ fn fog_near_light_rows_under_the_light() {
     let passes = 128;
     let means: Vec<f64> = (1..=passes)
         .map(|i| {
-            let img = r.pass(i).image;
-            band(&|k| img[k].x as f64)
+            let img = session.pass_image(i).expect("pass").pixels;
+            band(&|k| img[k][0] as f64)
         })
         .collect();
     let n = passes as f64;

@@ -2,8 +2,9 @@
 use glam::Vec3;
 
 use ppb::media::{Media, MediumDesc, Phase};
-use ppb::render::Renderer;
+use ppb::pass::Tracer;
 use ppb::scene::{Camera, Light, Scene};
+use ppb::session::Session;
 use ppb::settings::{Radius, RenderSettings};
 
 fn small_scene() -> Scene {
@@ -53,17 +54,24 @@ fn passes_do_not_depend_on_thread_count() {
     let settings = RenderSettings {
         width: 48,
         height: 32,
-        beams_per_pass: 5_000,
+        light_paths: 5_000,
         beam_radius: Radius::Auto,
         ..Default::default()
     };
-    let r = Renderer::new(&small_scene(), settings).unwrap();
-    let run = |threads: usize| {
+    let mut session = Session::cpu(Tracer::new(&small_scene(), settings).unwrap());
+    let mut run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .unwrap();
-        pool.install(|| (1..=3).map(|i| r.pass(i).image).collect::<Vec<_>>())
+        let mut pass = |i| {
+            let img = session.pass_image(i).unwrap();
+            img.pixels
+                .iter()
+                .map(|&p| Vec3::from(p))
+                .collect::<Vec<_>>()
+        };
+        pool.install(|| (1..=3).map(&mut pass).collect::<Vec<_>>())
     };
     let one = run(1);
     let two = run(2);
@@ -82,7 +90,7 @@ fn camera_optical_depths_match_box_chords() {
         ..Default::default()
     };
     let scene = small_scene();
-    let depths = Renderer::new(&scene, settings)
+    let depths = Tracer::new(&scene, settings)
         .unwrap()
         .camera_optical_depths();
     let cam = ppb::transport::camera::Pinhole::new(&scene.camera, w, h);

@@ -10,7 +10,7 @@ use std::process::Command;
 
 use ppb::compare::DeviceDiff;
 use ppb::gpu::beams::GpuBeams;
-use ppb::render::Renderer;
+use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::transport::transmittance::TrMode;
 
@@ -28,8 +28,8 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
     let g = gpu_or_skip(scene)?;
     let file = load(&data(scene)).expect("scene loads");
     let mut s = file.settings.clone();
-    (s.width, s.height, s.beams_per_pass, s.tr_mode) = (size, size, beams, tr);
-    let r = Renderer::new(&file.scene, s).expect("renderer");
+    (s.width, s.height, s.light_paths, s.tr_mode) = (size, size, beams, tr);
+    let r = Tracer::new(&file.scene, s).expect("renderer");
     let mut est = GpuBeams::new(g, r.media(), r.camera().origin(), size * size).expect("gpu");
     let mut out = Parity {
         diff: DeviceDiff::default(),
@@ -37,7 +37,7 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
         secondary: 0,
     };
     for &i in passes {
-        let t = r.trace(i, true);
+        let t = r.trace(&r.plan().pass(i), None, true);
         let (cpu, evals) = r.beam_image(&t);
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
@@ -102,7 +102,7 @@ fn render_on_gpu_from_the_command_line() {
         .args([
             "render", "--device", "gpu", "--size", "32x32", "--passes", "6",
         ])
-        .args(["--beams", "2000", "--quiet", "--cache-dir"])
+        .args(["--light-paths", "2000", "--quiet", "--cache-dir"])
         .arg(dir.join("cache"))
         .arg("-o")
         .arg(&out)

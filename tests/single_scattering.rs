@@ -12,7 +12,7 @@ use ppb::geometry::{Geometry, Ray};
 use ppb::media::homogeneous::ray_box;
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::scene::{Light, Scene};
-use ppb::transport::freepath::Woodcock;
+use ppb::transport::freepath::{FreePath, Mode};
 use ppb::transport::light::{LightSampler, LightTracer};
 
 const SIGMA_T: f32 = 0.1;
@@ -160,12 +160,15 @@ fn estimate(
     let media = Media::new(vec![medium]);
     let geometry = Geometry::new(&scene).unwrap();
     let lights = LightSampler::new(&scene.lights, cover);
-    let fp = Woodcock { media: &media };
+    let fp = FreePath {
+        media: &media,
+        mode: Mode::Woodcock,
+    };
     let tracer = LightTracer {
         lights: &lights,
         geometry: &geometry,
         media: &media,
-        free_path: &fp,
+        free_path: fp,
         beam_margin: radius,
     };
     let values: Vec<f64> = (1..=passes)

@@ -601,16 +601,15 @@ fn render_mean(scene: &ppb::scene::Scene) -> (Vec<[f32; 3]>, f64) {
         width: 24,
         height: 24,
         passes: 4,
-        beams_per_pass: 20_000,
+        light_paths: 20_000,
         seed: 7,
         ..Default::default()
     };
-    let r = ppb::render::Renderer::new(scene, s).expect("renderer");
-    let mut film = ppb::film::Film::new(24, 24);
-    for i in 1..=4 {
-        film.add_pass(&r.pass(i).image);
-    }
-    let img = film.image();
+    let r = ppb::pass::Tracer::new(scene, s).expect("renderer");
+    let img = ppb::session::Session::cpu(r)
+        .render(4)
+        .expect("render")
+        .pixels;
     let mean = img.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>() / img.len() as f64;
     (img, mean)
 }

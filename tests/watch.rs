@@ -14,7 +14,7 @@ const DEADLINE: Duration = Duration::from_secs(60);
 
 /// A 32x32 scene: floor, one light (`light`), and `medium`.
 fn scene_text(light: &str, medium: &str) -> String {
-    let render = "width = 32\nheight = 32\npasses = 100000\nbeams_per_pass = 1000";
+    let render = "width = 32\nheight = 32\npasses = 100000\nlight_paths = 1000";
     floor_scene(render, 0.5, &format!("{light}\n\n{medium}\n"))
 }
 

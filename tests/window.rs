@@ -145,7 +145,7 @@ fn content(shot: &Shot) -> (usize, usize) {
 }
 
 fn scene_text() -> String {
-    let render = "width = 32\nheight = 32\npasses = 100000\nbeams_per_pass = 2000\nexposure = 1.0";
+    let render = "width = 32\nheight = 32\npasses = 100000\nlight_paths = 2000\nexposure = 1.0";
     let light = "[[light]]\ntype = \"point\"\nposition = [0, 2.6, 0]\nintensity = [40, 40, 40]\n";
     floor_scene(render, 0.8, light)
 }

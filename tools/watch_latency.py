@@ -13,7 +13,7 @@ Each edit waits a random 2-4 s of refining first, so it lands at a random point 
 in flight (the worker applies reloads between passes).
 
 Usage: tools/watch_latency.py [--ppb target/release/ppb] [--scene fog-box] [--repeats 5]
-                              [--beams N] [--threads N] [--settle MIN MAX]
+                              [--light-paths N] [--threads N] [--settle MIN MAX]
 """
 import argparse
 import os
@@ -103,7 +103,7 @@ def main():
     ap.add_argument("--ppb", default=os.path.join(ROOT, "target", "release", "ppb"))
     ap.add_argument("--scene", default="fog-box", help="conformance scene name")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--beams", type=int, help="light paths per pass (default: the scene's)")
+    ap.add_argument("--light-paths", type=int, help="light paths per pass (default: the scene's)")
     ap.add_argument("--threads", type=int)
     ap.add_argument("--settle", type=float, nargs=2, default=[2.0, 4.0], metavar=("MIN", "MAX"),
                     help="seconds of refining before each edit, drawn uniformly")
@@ -119,8 +119,8 @@ def main():
         out = os.path.join(tmp, "out", a.scene + ".exr")
         cmd = [a.ppb, "watch", scene, "-o", out, "--size", "256x256", "--passes", "0",
                "--cache-dir", os.path.join(tmp, "cache")]
-        if a.beams:
-            cmd += ["--beams", str(a.beams)]
+        if a.light_paths:
+            cmd += ["--light-paths", str(a.light_paths)]
         if a.threads:
             cmd += ["--threads", str(a.threads)]
         print(" ".join(cmd), flush=True)

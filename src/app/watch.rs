@@ -16,14 +16,16 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use ppb::error::Error as PpbError;
-use ppb::film::Film;
-use ppb::render::Renderer;
+use ppb::gpu::Gpu;
+use ppb::pass::Tracer;
+use ppb::plan::Ramp;
 use ppb::scene::assets::AssetCache;
 use ppb::scene::toml::{self as scene_toml, SceneFile};
+use ppb::session::{Flow, Session};
 use ppb::settings::RenderSettings;
 use ppb::watch::{deps, diff::Changes, octrees};
 
-use super::window;
+use super::{window, Machine, OutputMeta, Overrides};
 
 #[derive(Args)]
 pub struct WatchArgs {
@@ -40,32 +42,19 @@ pub struct WatchArgs {
     /// Passes per (re)start, overriding [render].passes; 0 refines forever.
     #[arg(long)]
     pub passes: Option<u32>,
-    /// Trace all light paths from the first pass after a reload (default: passes 1, 2 and 3
-    /// use 1/8, 1/4 and 1/2 of them, so the preview restarts quickly).
+    /// Trace all light paths from the first pass after a reload (default: the ramp: the
+    /// first pass traces 1/8 of them, and each next pass twice as many while a pass takes
+    /// under 0.15 s, so the preview restarts quickly and passes stay short).
     #[arg(long)]
     pub no_ramp: bool,
     /// Rewrite the EXR/PNG every K passes ("8") or S seconds ("2s"); the first pass after
     /// every reload and the last pass are always written.
     #[arg(long, value_parser = parse_checkpoint, default_value = "1s")]
     pub checkpoint: Checkpoint,
-    /// Random seed (overrides [render].seed).
-    #[arg(long)]
-    pub seed: Option<u64>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Image size override, e.g. 64x64.
-    #[arg(long, value_parser = super::parse_size)]
-    pub size: Option<(u32, u32)>,
-    /// Light paths per pass (overrides [render].beams_per_pass).
-    #[arg(long)]
-    pub beams: Option<usize>,
-    /// PNG and window exposure in stops (overrides [render].exposure).
-    #[arg(long)]
-    pub exposure: Option<f32>,
-    /// Where baked octrees are cached (default: .ppb-cache/ beside the scene).
-    #[arg(long)]
-    pub cache_dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub over: Overrides,
+    #[command(flatten)]
+    pub machine: Machine,
     /// No status line (event lines such as reloads and errors are still printed).
     #[arg(short, long)]
     pub quiet: bool,
@@ -120,19 +109,9 @@ pub struct Frame {
 pub type SharedFrame = Arc<Mutex<Frame>>;
 
 pub fn watch(args: WatchArgs) -> Result<ExitCode> {
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n.max(1))
-            .build_global()
-            .context("setting up the thread pool")?;
-    }
-    let out = args.output.clone().unwrap_or_else(|| {
-        let stem = args.scene.file_stem().unwrap_or_default().to_string_lossy();
-        PathBuf::from(format!("{stem}.exr"))
-    });
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
+    super::set_threads(args.machine.threads)?;
+    let out = super::output_path(&args.scene, args.output.as_ref())?;
+    let gpu = super::open_device(args.machine.device, false)?;
     let (tx, rx) = mpsc::channel();
     let shared: SharedFrame = Arc::default();
     let mut ui = None;
@@ -148,7 +127,7 @@ pub fn watch(args: WatchArgs) -> Result<ExitCode> {
         let shared = shared.clone();
         std::thread::Builder::new()
             .name("render".into())
-            .spawn(move || Worker::new(args, out, tx, shared, wake).run(rx))
+            .spawn(move || Worker::new(args, out, gpu, tx, shared, wake).run(rx))
             .context("starting the render thread")?
     };
     if let Some(w) = ui {
@@ -164,34 +143,11 @@ pub fn watch(args: WatchArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The scene being rendered and its renderer.
+/// The scene being rendered and its session.
 struct Current {
     file: SceneFile,
     settings: RenderSettings,
-    renderer: Renderer,
-    /// The scene's octrees, for the ramp renderers.
-    trees: Vec<ppb::majorant::Octree>,
-    /// The renderer of the current ramp pass and its light paths per pass.
-    ramp: Option<(usize, Renderer)>,
-}
-
-/// Passes are kept near this long (s): an edit waits for at most one pass in flight.
-const PASS_TARGET: f64 = 0.3;
-
-/// Light paths of pass `i` after a (re)load, given the previous pass's paths and seconds:
-/// 1/8 of the scene's first, then doubled while a pass takes under half of
-/// [`PASS_TARGET`], up to all of them. The first preview comes after a short pass and, on a
-/// heavy scene, passes stay short so a save is never stuck behind a long one. Every pass is
-/// an unbiased estimate whatever its path count, so the progressive mean stays consistent.
-fn ramp_beams(full: usize, i: u32, last_beams: usize, last_seconds: f64) -> usize {
-    if i <= 1 || last_beams == 0 {
-        return (full >> 3).max(1);
-    }
-    if last_seconds < 0.5 * PASS_TARGET {
-        (last_beams * 2).min(full)
-    } else {
-        last_beams.min(full)
-    }
+    session: Session,
 }
 
 /// The render thread: owns the scene, the accumulation, the watcher and the status line.
@@ -201,8 +157,9 @@ struct Worker {
     cache_dir: PathBuf,
     assets: AssetCache,
     trees: octrees::OctreeStore,
+    /// The beam estimate's GPU (None: the CPU), shared by every reload's session.
+    gpu: Option<Gpu>,
     current: Option<Current>,
-    film: Film,
     generation: u32,
     /// When the change behind the current generation was seen.
     changed_at: Instant,
@@ -220,7 +177,7 @@ struct Worker {
     /// Timings behind the latest preview line: seen-to-renderer, last pass.
     reload_seconds: f64,
     pass_seconds: f64,
-    pass_beams: usize,
+    pass_paths: usize,
 }
 
 /// The one-line terminal status: redrawn in place on a terminal, absent otherwise.
@@ -267,6 +224,7 @@ impl Worker {
     fn new(
         args: WatchArgs,
         out: PathBuf,
+        gpu: Option<Gpu>,
         tx: Sender<Msg>,
         shared: SharedFrame,
         wake: Option<Box<dyn Fn() + Send>>,
@@ -281,14 +239,14 @@ impl Worker {
             drawn: None,
         };
         Worker {
-            cache_dir: super::cache_dir_for(&args.scene, args.cache_dir.as_ref()),
+            cache_dir: super::cache_dir_for(&args.scene, args.machine.cache_dir.as_ref()),
             watched: vec![deps::absolute(&args.scene)],
             args,
             out,
             assets: AssetCache::new(),
             trees: octrees::OctreeStore::new(),
+            gpu,
             current: None,
-            film: Film::new(1, 1),
             generation: 0,
             changed_at: now,
             gen_start: now,
@@ -303,7 +261,7 @@ impl Worker {
             snapshots: 0,
             reload_seconds: 0.0,
             pass_seconds: 0.0,
-            pass_beams: 0,
+            pass_paths: 0,
         }
     }
 
@@ -374,26 +332,12 @@ impl Worker {
     }
 
     fn refining(&self) -> bool {
-        self.current.is_some() && (self.budget() == 0 || self.film.passes() < self.budget())
+        self.current.is_some() && (self.budget() == 0 || self.passes() < self.budget())
     }
 
-    /// Command-line overrides on the scene's [render] settings.
-    fn settings(&self, file: &SceneFile) -> RenderSettings {
-        let a = &self.args;
-        let mut s = file.settings.clone();
-        if let Some(x) = a.seed {
-            s.seed = x;
-        }
-        if let Some((w, h)) = a.size {
-            (s.width, s.height) = (w, h);
-        }
-        if let Some(b) = a.beams {
-            s.beams_per_pass = b.max(1);
-        }
-        if let Some(e) = a.exposure {
-            s.exposure = e;
-        }
-        s
+    /// Passes in the current image.
+    fn passes(&self) -> u32 {
+        self.current.as_ref().map_or(0, |c| c.session.passes())
     }
 
     /// Reports an error once (a save seen twice gives the same error twice).
@@ -429,7 +373,13 @@ impl Worker {
             }
         };
         let loaded = self.assets.loaded().to_vec();
-        let settings = self.settings(&file);
+        for w in &file.warnings {
+            self.status.log(&format!("warning: {w}"));
+        }
+        let settings = match self.args.over.apply(&file.settings) {
+            Ok(s) => s,
+            Err(e) => return self.error(format!("{e:#}")),
+        };
         let changes = self
             .current
             .as_ref()
@@ -449,11 +399,12 @@ impl Worker {
                 return;
             }
         }
-        let (trees, reused) = self.octrees(&file, &settings);
-        let renderer = match Renderer::with_octrees(&file.scene, settings.clone(), trees.clone()) {
-            Ok(r) => r,
+        let session = match self.session(&file, &settings) {
+            Ok(s) => s,
             Err(e) => return self.error(e.to_string()),
         };
+        let reused = session.1;
+        let session = session.0;
         self.generation += 1;
         let what = match &changes {
             None => format!("loaded {}", short(&self.args.scene)),
@@ -463,13 +414,10 @@ impl Worker {
             .log(&format!("reload {}: {what}", self.generation));
         self.status.last_reload = what;
         self.status.last_error = None;
-        self.film = Film::new(settings.width, settings.height);
         self.current = Some(Current {
             file,
             settings,
-            renderer,
-            trees,
-            ramp: None,
+            session,
         });
         self.reload_seconds = self.changed_at.elapsed().as_secs_f64();
         self.watched = deps::files(&self.current.as_ref().expect("just set").file);
@@ -479,16 +427,16 @@ impl Worker {
         self.publish_error();
     }
 
-    /// The scene's octrees (kept, cached or built; every non-kept one logged) and how many
-    /// were kept from the previous scene.
-    fn octrees(
+    /// A session for the scene (octrees kept, cached or built, every non-kept one logged)
+    /// and how many octrees were kept from the previous scene.
+    fn session(
         &mut self,
         file: &SceneFile,
         settings: &RenderSettings,
-    ) -> (Vec<ppb::majorant::Octree>, usize) {
+    ) -> ppb::error::Result<(Session, usize)> {
         let mut lines = Vec::new();
         let mut reused = 0;
-        let trees = self.trees.prepare(
+        let media = self.trees.media(
             &file.scene,
             settings.octree_depth,
             &self.cache_dir,
@@ -500,7 +448,16 @@ impl Worker {
         for l in &lines {
             self.status.log(l);
         }
-        (trees, reused)
+        let tracer = Tracer::with_media(&file.scene, settings.clone(), media?)?;
+        let ramp = if self.args.no_ramp {
+            Ramp::Off
+        } else {
+            Ramp::Doubling
+        };
+        Ok((
+            Session::open(tracer, self.gpu.clone())?.with_ramp(ramp),
+            reused,
+        ))
     }
 
     /// Watches the folders of the watched files, and no others.
@@ -525,27 +482,20 @@ impl Worker {
     }
 
     fn pass(&mut self) {
-        let Some(cur) = &self.current else {
+        let Some(cur) = &mut self.current else {
             return;
         };
-        let i = self.film.passes() + 1;
-        let full = cur.settings.beams_per_pass;
-        let beams = if self.args.no_ramp {
-            full
-        } else {
-            ramp_beams(full, i, self.pass_beams, self.pass_seconds)
-        };
-        let start = Instant::now();
-        let result = match self.ramp_renderer(beams) {
-            Some(r) => r.pass(i),
-            None => match &self.current {
-                Some(cur) => cur.renderer.pass(i),
-                None => return,
-            },
-        };
-        self.pass_seconds = start.elapsed().as_secs_f64();
-        self.pass_beams = beams;
-        self.film.add_pass(&result.image);
+        let i = cur.session.passes() + 1;
+        let mut last = (0, 0.0);
+        let r = cur.session.run([i], |_, done| {
+            last = (done.plan.light_paths, done.seconds);
+            Ok::<_, ppb::error::Error>(Flow::Continue)
+        });
+        if let Err(e) = r {
+            self.current = None;
+            return self.error(format!("pass {i}: {e}"));
+        }
+        (self.pass_paths, self.pass_seconds) = last;
         let due = match self.args.checkpoint {
             Checkpoint::Passes(k) => i - self.written_at_pass >= k,
             Checkpoint::Seconds(s) => self.last_write.elapsed().as_secs_f64() >= s,
@@ -559,31 +509,47 @@ impl Worker {
             };
             self.write_outputs(why);
         }
+        if last {
+            self.status.log(&format!(
+                "{} passes done in {:.1} s, {} written; watching for changes",
+                i,
+                self.seconds(),
+                self.out.display()
+            ));
+        }
         self.publish();
         self.show_status();
     }
 
-    /// The renderer for a ramp pass with `beams` light paths (None: the full renderer).
-    fn ramp_renderer(&mut self, beams: usize) -> Option<&Renderer> {
-        let cur = self.current.as_mut()?;
-        if beams == cur.settings.beams_per_pass {
-            cur.ramp = None;
-            return None;
-        }
-        if cur.ramp.as_ref().map(|r| r.0) != Some(beams) {
-            let settings = RenderSettings {
-                beams_per_pass: beams,
-                ..cur.settings.clone()
-            };
-            cur.ramp = Renderer::with_octrees(&cur.file.scene, settings, cur.trees.clone())
-                .ok()
-                .map(|r| (beams, r));
-        }
-        cur.ramp.as_ref().map(|r| &r.1)
-    }
-
     fn seconds(&self) -> f64 {
         self.gen_start.elapsed().as_secs_f64()
+    }
+
+    /// The current image written to `path` with `exposure` (and `extra` header lines).
+    fn write_image(
+        &mut self,
+        path: &Path,
+        exposure: f32,
+        extra: &[(String, String)],
+    ) -> Result<u32> {
+        let seconds = self.seconds();
+        let Some(cur) = &mut self.current else {
+            anyhow::bail!("no image yet");
+        };
+        let img = cur.session.image()?;
+        let settings = RenderSettings {
+            exposure,
+            ..cur.settings.clone()
+        };
+        let meta = OutputMeta {
+            scene: &self.args.scene,
+            settings: &settings,
+            passes: cur.session.passes(),
+            seconds,
+            extra,
+        };
+        super::write_outputs(path, &img, &meta)?;
+        Ok(meta.passes)
     }
 
     /// Rewrites the EXR and PNG (atomically); the first write of a generation is logged
@@ -592,18 +558,13 @@ impl Worker {
         let Some(cur) = &self.current else {
             return;
         };
-        if self.film.passes() == 0 {
+        if cur.session.passes() == 0 {
             return;
         }
+        let exposure = cur.settings.exposure;
         let extra = [("ppb.reload".to_string(), self.generation.to_string())];
-        let r = super::write_film(
-            &self.out,
-            &self.film,
-            &cur.settings,
-            self.seconds(),
-            &self.args.scene,
-            &extra,
-        );
+        let out = self.out.clone();
+        let r = self.write_image(&out, exposure, &extra);
         self.last_write = Instant::now();
         if let Err(e) = r {
             return self.error(format!("writing {}: {e:#}", self.out.display()));
@@ -617,40 +578,26 @@ impl Worker {
                 self.changed_at.elapsed().as_secs_f64(),
                 self.reload_seconds,
                 self.pass_seconds,
-                self.pass_beams,
+                self.pass_paths,
             ));
         }
-        self.written_at_pass = self.film.passes();
+        self.written_at_pass = self.passes();
     }
 
     /// Writes `<out>-snapshot-N.exr/.png` with the window's exposure.
     fn snapshot(&mut self, exposure: f32) {
-        let Some(cur) = &self.current else {
+        if self.current.is_none() {
             return self.error("snapshot: no image yet".into());
-        };
+        }
         self.snapshots += 1;
         let stem = self.out.file_stem().unwrap_or_default().to_string_lossy();
         let path = self
             .out
             .with_file_name(format!("{stem}-snapshot-{}.exr", self.snapshots));
-        let settings = RenderSettings {
-            exposure,
-            ..cur.settings.clone()
-        };
-        let r = super::write_film(
-            &path,
-            &self.film,
-            &settings,
-            self.seconds(),
-            &self.args.scene,
-            &[],
-        );
-        match r {
-            Ok(()) => self.status.log(&format!(
-                "snapshot {} ({} passes)",
-                path.display(),
-                self.film.passes()
-            )),
+        match self.write_image(&path, exposure, &[]) {
+            Ok(passes) => self
+                .status
+                .log(&format!("snapshot {} ({passes} passes)", path.display(),)),
             Err(e) => self.error(format!("snapshot {}: {e:#}", path.display())),
         }
     }
@@ -660,7 +607,7 @@ impl Worker {
             return;
         }
         let secs = self.seconds();
-        let pps = self.film.passes() as f64 / secs.max(1e-9);
+        let pps = self.passes() as f64 / secs.max(1e-9);
         let budget = match self.budget() {
             0 => String::new(),
             b => format!("/{b}"),
@@ -672,7 +619,7 @@ impl Worker {
         let line = format!(
             "{} | pass {}{budget} | {pps:.2} passes/s | reload {} {:.0} s ago: {}{err}",
             self.status.scene,
-            self.film.passes(),
+            self.passes(),
             self.generation,
             self.changed_at.elapsed().as_secs_f64(),
             self.status.last_reload
@@ -684,18 +631,24 @@ impl Worker {
 
     /// Hands the current image to the window.
     fn publish(&mut self) {
-        let Some(cur) = &self.current else {
-            return;
-        };
         if self.wake.is_none() {
             return;
         }
-        let pixels = self.film.image();
+        let Some(cur) = &mut self.current else {
+            return;
+        };
+        let img = match cur.session.image() {
+            Ok(img) => img,
+            Err(e) => return self.error(format!("reading the image: {e}")),
+        };
+        let Some(cur) = &self.current else {
+            return;
+        };
         if let Ok(mut f) = self.shared.lock() {
-            f.width = self.film.width;
-            f.height = self.film.height;
-            f.pixels = pixels;
-            f.passes = self.film.passes();
+            f.width = img.width as u32;
+            f.height = img.height as u32;
+            f.pixels = img.pixels;
+            f.passes = cur.session.passes();
             f.seconds = self.gen_start.elapsed().as_secs_f64();
             f.exposure = cur.settings.exposure;
             f.scene = self.status.scene.clone();
@@ -753,20 +706,6 @@ fn terminal_width() -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Fast passes double up to the full count; slow ones stay put.
-    #[test]
-    fn ramp_doubles_while_passes_are_short() {
-        let (mut beams, mut seen) = (0, Vec::new());
-        for i in 1..=5 {
-            beams = ramp_beams(100_000, i, beams, 0.01);
-            seen.push(beams);
-        }
-        assert_eq!(seen, [12_500, 25_000, 50_000, 100_000, 100_000]);
-        assert_eq!(ramp_beams(3, 1, 0, 0.0), 1);
-        assert_eq!(ramp_beams(100_000, 3, 25_000, 0.2), 25_000);
-        assert_eq!(ramp_beams(100_000, 1, 25_000, 0.01), 12_500);
-    }
 
     #[test]
     fn checkpoint_parses_passes_and_seconds() {

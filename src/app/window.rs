@@ -107,7 +107,7 @@ struct App {
     tx: Sender<Msg>,
     /// Key-set exposure on top of the scene's, stops.
     exposure_offset: f32,
-    gpu: Option<Gpu>,
+    gpu: Option<Presenter>,
     /// Serial of the uploaded frame.
     serial: u64,
     /// Image size the window was last sized for.
@@ -120,7 +120,7 @@ impl ApplicationHandler for App {
         if self.gpu.is_some() {
             return;
         }
-        match Gpu::new(el) {
+        match Presenter::new(el) {
             Ok(g) => self.gpu = Some(g),
             Err(e) => {
                 self.error = Some(e);
@@ -212,7 +212,7 @@ fn window_size(w: u32, h: u32) -> PhysicalSize<u32> {
 }
 
 /// The window and everything drawn into it.
-struct Gpu {
+struct Presenter {
     window: Arc<winit::window::Window>,
     surface: wgpu::Surface<'static>,
     device: wgpu::Device,
@@ -225,7 +225,7 @@ struct Gpu {
     image: Option<(wgpu::Texture, u32, u32, wgpu::BindGroup)>,
 }
 
-impl Gpu {
+impl Presenter {
     fn new(el: &ActiveEventLoop) -> Result<Self> {
         let attrs = winit::window::Window::default_attributes()
             .with_title("ppb watch")
@@ -283,7 +283,7 @@ impl Gpu {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Ok(Gpu {
+        Ok(Presenter {
             window,
             surface,
             device,

@@ -2,13 +2,51 @@
 //! on a CPU, see `splat`), segments after specular bounces through the beam BVH. The GPU
 //! path (`gpu::beams`) computes the same sums.
 use rayon::prelude::*;
+use std::time::Instant;
 
 use super::beams::BeamMap;
 use super::splat::splat;
+use super::Estimator;
+use crate::error::Result;
+use crate::film::Film;
 use crate::media::Media;
+use crate::pass::{TracedPass, Tracer};
 use crate::scene::Rgb;
 use crate::transport::camera::{CameraPass, Pinhole, Secondary};
 use crate::transport::Beam;
+
+/// The beam estimate on the CPU, added to the film pass by pass.
+pub struct CpuBeams;
+
+impl Estimator for CpuBeams {
+    fn describe(&self) -> String {
+        "cpu".into()
+    }
+
+    fn needs_beam_map(&self) -> bool {
+        false
+    }
+
+    fn estimate(
+        &mut self,
+        tracer: &Tracer,
+        t: &TracedPass,
+        film: &mut Film,
+        _traced: (Instant, Instant),
+    ) -> Result<u64> {
+        let (img, evals) = tracer.beam_image(t);
+        film.add(&img);
+        Ok(evals)
+    }
+
+    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>> {
+        Ok(None)
+    }
+
+    fn clear(&mut self) -> Result<()> {
+        Ok(())
+    }
+}
 
 /// Per-pixel beam radiance of a pass and the number of kernel evaluations.
 pub fn beam_image(

@@ -21,11 +21,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
-use super::layout::{media_params, Chunk, Params, Segments};
+use super::layout::{media_params, Chunk, Params, SegmentUpload};
 use super::Gpu;
 use crate::error::{Error, Result};
+use crate::estimate::Estimator;
+use crate::film::Film;
 use crate::media::Media;
-use crate::render::TracedPass;
+use crate::pass::{TracedPass, Tracer};
 use glam::Vec3;
 
 pub const SHADER: &str = include_str!("../../shaders/beam_estimate.wgsl");
@@ -41,6 +43,41 @@ pub struct GpuTiming {
     pub done: Instant,
     pub waited: Duration,
     pub upload_seconds: f64,
+}
+
+/// How the GPU estimate overlapped the CPU's tracing of the next pass.
+#[derive(serde::Serialize, Default, Clone, Debug)]
+pub struct GpuStats {
+    pub adapter: String,
+    pub passes: u32,
+    /// Sum over passes of submission to completion of the estimate.
+    pub estimate_seconds: f64,
+    /// The part of that during which the CPU was tracing the next pass.
+    pub overlap_seconds: f64,
+    /// Time the CPU sat waiting for the GPU.
+    pub wait_seconds: f64,
+    /// Building and uploading segments and the beam BVH.
+    pub upload_seconds: f64,
+    /// Beam-segment crossings within the radius, counted by the GPU (as of the last
+    /// read-back).
+    pub beam_evaluations: u64,
+}
+
+impl GpuStats {
+    /// Adds one finished pass; `tracing` is the CPU's tracing interval that ran meanwhile.
+    fn record(&mut self, t: Option<GpuTiming>, tracing: Option<(Instant, Instant)>) {
+        let Some(t) = t else { return };
+        self.passes += 1;
+        self.estimate_seconds += (t.done - t.submitted).as_secs_f64();
+        self.wait_seconds += t.waited.as_secs_f64();
+        self.upload_seconds += t.upload_seconds;
+        if let Some((a, b)) = tracing {
+            let (lo, hi) = (a.max(t.submitted), b.min(t.done));
+            if hi > lo {
+                self.overlap_seconds += (hi - lo).as_secs_f64();
+            }
+        }
+    }
 }
 
 struct InFlight {
@@ -117,6 +154,7 @@ pub struct GpuBeams {
     origin: Vec3,
     pixels: u32,
     in_flight: Option<InFlight>,
+    stats: GpuStats,
 }
 
 impl GpuBeams {
@@ -184,6 +222,7 @@ impl GpuBeams {
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let adapter = gpu.describe();
         Ok(GpuBeams {
             segments: Grow::new(dev, "segments"),
             pixel_first: Grow::new(dev, "pixel ranges"),
@@ -204,6 +243,10 @@ impl GpuBeams {
             origin,
             pixels,
             in_flight: None,
+            stats: GpuStats {
+                adapter,
+                ..Default::default()
+            },
         })
     }
 
@@ -221,7 +264,7 @@ impl GpuBeams {
             _ => return Ok(prev),
         };
         let nodes = map.nodes();
-        let segs = Segments::build(self.origin, &t.camera, media);
+        let segs = SegmentUpload::build(self.origin, &t.camera, media);
         if segs.pixel_first.len() != self.pixels as usize + 1 {
             return Err(Error::Gpu("pass size differs from the estimator's".into()));
         }
@@ -404,6 +447,43 @@ impl GpuBeams {
                 layout: &self.layout,
                 entries: &entries,
             })
+    }
+}
+
+impl Estimator for GpuBeams {
+    fn describe(&self) -> String {
+        self.gpu.describe()
+    }
+
+    fn needs_beam_map(&self) -> bool {
+        true
+    }
+
+    fn estimate(
+        &mut self,
+        tracer: &Tracer,
+        t: &TracedPass,
+        _film: &mut Film,
+        traced: (Instant, Instant),
+    ) -> Result<u64> {
+        let prev = self.submit(t, tracer.media())?;
+        self.stats.record(prev, Some(traced));
+        Ok(0)
+    }
+
+    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>> {
+        let (acc, timing) = self.read()?;
+        self.stats.record(timing, None);
+        self.stats.beam_evaluations = acc.iter().map(|a| a[3] as f64).sum::<f64>() as u64;
+        Ok(Some(acc))
+    }
+
+    fn clear(&mut self) -> Result<()> {
+        GpuBeams::clear(self)
+    }
+
+    fn gpu_stats(&self) -> Option<GpuStats> {
+        Some(self.stats.clone())
     }
 }
 

@@ -172,22 +172,22 @@ fn grid_meta(g: &GridMedium, data: &mut Vec<u32>) -> Result<GridMeta> {
 /// One pass's camera segments in pixel order, the per-pixel ranges into them
 /// (`pixels + 1` entries) and the transmittance steps.
 #[derive(Default)]
-pub struct Segments {
+pub struct SegmentUpload {
     pub segments: Vec<Segment>,
     pub pixel_first: Vec<u32>,
     pub tr_steps: Vec<[f32; 2]>,
 }
 
-impl Segments {
-    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> Segments {
+impl SegmentUpload {
+    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> SegmentUpload {
         let Some(bounds) = media.bounds() else {
-            return Segments {
+            return SegmentUpload {
                 segments: Vec::new(),
                 pixel_first: vec![0; pass.primaries.len() + 1],
                 tr_steps: Vec::new(),
             };
         };
-        let mut out = Segments {
+        let mut out = SegmentUpload {
             segments: Vec::with_capacity(pass.primaries.len()),
             pixel_first: Vec::with_capacity(pass.primaries.len() + 1),
             tr_steps: Vec::new(),

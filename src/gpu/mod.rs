@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use crate::error::{Error, Result};
 
 /// Where the beam estimate runs (`--device`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum DeviceKind {
     /// A hardware adapter if there is one, else the CPU. Software rasterizers (lavapipe,
     /// llvmpipe, WARP) run no faster than the CPU path, so auto does not pick them.
@@ -20,6 +20,7 @@ pub enum DeviceKind {
 }
 
 /// An open device and what the estimate needs to know about it.
+#[derive(Clone)]
 pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,

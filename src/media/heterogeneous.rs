@@ -5,9 +5,12 @@ use std::sync::Arc;
 
 use super::grid::Grid;
 use super::Phase;
+use crate::error::{Error, Result};
 use crate::geometry::Ray;
+use crate::majorant::{LeafBounds, Octree};
 use crate::media::homogeneous::ray_box;
 use crate::scene::Rgb;
+use crate::transport::freepath::Mode;
 
 #[derive(Clone, Debug)]
 pub struct GridMedium {
@@ -73,6 +76,91 @@ impl GridMedium {
     }
 }
 
+/// A grid medium ready for transport: its field and the majorant octree baked for it.
+/// It cannot be made without its majorants, so nothing pairs media and octrees by their
+/// position in a list (pbrt-v4's media own their majorant grids the same way).
+#[derive(Clone, Debug)]
+pub struct Heterogeneous {
+    field: GridMedium,
+    octree: Arc<Octree>,
+}
+
+impl std::ops::Deref for Heterogeneous {
+    type Target = GridMedium;
+    fn deref(&self) -> &GridMedium {
+        &self.field
+    }
+}
+
+impl Heterogeneous {
+    /// `field` with an octree built for it (from the cache or just now); an octree over
+    /// another box is refused.
+    pub fn new(field: GridMedium, octree: Arc<Octree>) -> Result<Self> {
+        let root = octree.root();
+        let [lo, hi] = field.bounds;
+        // The builder's box arithmetic may round the root's faces by an ulp or two.
+        let tol = 1e-5 * (hi - lo).max_element().max(1e-6);
+        let off = (Vec3::from(root.min) - lo)
+            .abs()
+            .max((Vec3::from(root.max) - hi).abs())
+            .max_element();
+        if off.is_nan() || off > tol {
+            return Err(Error::Other(format!(
+                "{}: the majorant octree covers {:?}..{:?}, the medium {:?}..{:?}",
+                field.source, root.min, root.max, field.bounds[0], field.bounds[1]
+            )));
+        }
+        Ok(Heterogeneous { field, octree })
+    }
+
+    /// `field` with its octree baked now (no cache), `depth` levels deep.
+    pub fn build(field: GridMedium, depth: u32) -> Self {
+        let octree = Arc::new(Octree::build(&field, depth));
+        Heterogeneous { field, octree }
+    }
+
+    pub fn field(&self) -> &GridMedium {
+        &self.field
+    }
+
+    pub fn octree(&self) -> &Octree {
+        &self.octree
+    }
+
+    /// The majorant segments of the ray over [0, tmax], front to back, as `f(bounds, t0,
+    /// t1)`, until `f` returns false: one segment at the global majorant (Woodcock), or
+    /// the octree leaves the ray crosses (adaptive). Returns the segments visited.
+    pub fn majorants(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        mode: Mode,
+        mut f: impl FnMut(LeafBounds, f32, f32) -> bool,
+    ) -> u64 {
+        match mode {
+            Mode::Woodcock => {
+                let Some((t0, t1)) = self.interval(ray, tmax) else {
+                    return 0;
+                };
+                let b = LeafBounds {
+                    majorant: self.majorant(),
+                    minorant: 0.0,
+                };
+                f(b, t0, t1);
+                1
+            }
+            Mode::Adaptive => {
+                let mut steps = 0;
+                self.octree.walk(ray, tmax, |b, t0, t1| {
+                    steps += 1;
+                    f(b, t0, t1)
+                });
+                steps
+            }
+        }
+    }
+}
+
 /// Max voxel value and the world box of all non-background voxels, padded by one voxel
 /// (the trilinear support).
 fn extent(grid: &Grid, index_to_world: &DAffine3) -> (f32, [Vec3; 2]) {
@@ -111,4 +199,91 @@ fn extent(grid: &Grid, index_to_world: &DAffine3) -> (f32, [Vec3; 2]) {
         whi = whi.max(w);
     }
     (max, [wlo.as_vec3(), whi.as_vec3()])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::media::grid::GridBuilder;
+    use glam::IVec3;
+
+    /// 8^3 voxels of density 1 + i, 0.1 m apart, shifted by `offset` (m) along x.
+    fn field(offset: f64) -> GridMedium {
+        let xf = DAffine3::from_translation(DVec3::new(offset, 0.0, 0.0))
+            * DAffine3::from_scale(DVec3::splat(0.1));
+        let mut b = GridBuilder::new("density", 0.0, xf);
+        for i in 0..8 {
+            for j in 0..8 {
+                for k in 0..8 {
+                    b.set(IVec3::new(i, j, k), 1.0 + i as f32, true);
+                }
+            }
+        }
+        let g = Arc::new(b.finish());
+        let (one, name) = (Vec3::ONE, "test".to_string());
+        GridMedium::new(
+            g,
+            DAffine3::IDENTITY,
+            2.0,
+            one,
+            Phase::ISOTROPIC,
+            name,
+            [0; 32],
+        )
+    }
+
+    /// A medium refuses an octree baked for another field's box; its own is accepted.
+    #[test]
+    fn a_medium_takes_only_its_own_majorants() {
+        let (a, b) = (field(0.0), field(0.5));
+        let other = Arc::new(Octree::build(&b, 3));
+        let err = Heterogeneous::new(a.clone(), other)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("test") && err.contains("octree"), "{err}");
+        assert!(Heterogeneous::new(a.clone(), Arc::new(Octree::build(&a, 3))).is_ok());
+    }
+
+    /// Woodcock hands out one segment at the global majorant over the medium's span; the
+    /// octree's segments tile the same span, front to back, each bounding sigma_t.
+    #[test]
+    fn majorant_segments_cover_the_span() {
+        let h = Heterogeneous::build(field(0.0), 3);
+        let ray = Ray::new(
+            Vec3::new(-1.0, 0.33, 0.41),
+            Vec3::new(1.0, 0.02, 0.01).normalize(),
+        );
+        let (t0, t1) = h.interval(&ray, 10.0).expect("the ray crosses the medium");
+        let mut global = Vec::new();
+        let n = h.majorants(&ray, 10.0, Mode::Woodcock, |b, a, c| {
+            global.push((b, a, c));
+            true
+        });
+        assert_eq!(n, 1);
+        assert_eq!(global[0].0.majorant, h.majorant());
+        assert_eq!((global[0].1, global[0].2), (t0, t1));
+        let mut leaves = Vec::new();
+        let n = h.majorants(&ray, 10.0, Mode::Adaptive, |b, a, c| {
+            leaves.push((b, a, c));
+            true
+        });
+        assert!(n > 1 && n as usize == leaves.len());
+        assert!((leaves[0].1 - t0).abs() < 1e-5 && (leaves[n as usize - 1].2 - t1).abs() < 1e-5);
+        for w in leaves.windows(2) {
+            assert!((w[0].2 - w[1].1).abs() < 1e-5, "segments are contiguous");
+        }
+        for (b, a, c) in &leaves {
+            for k in 0..=8 {
+                let t = a + (c - a) * k as f32 / 8.0;
+                assert!(h.sigma_t(ray.at(t)) <= b.majorant * (1.0 + 1e-5));
+            }
+        }
+        // Stopping early visits no more segments.
+        let mut seen = 0;
+        h.majorants(&ray, 10.0, Mode::Adaptive, |_, _, _| {
+            seen += 1;
+            false
+        });
+        assert_eq!(seen, 1);
+    }
 }

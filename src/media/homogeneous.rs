@@ -4,7 +4,7 @@
 use glam::Vec3;
 use smallvec::SmallVec;
 
-use super::{GridMedium, Phase};
+use super::{Heterogeneous, Phase};
 use crate::geometry::Ray;
 use crate::scene::Rgb;
 
@@ -21,21 +21,22 @@ pub struct MediumDesc {
 
 /// A ray interval of constant total extinction.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Segment {
+pub struct Piece {
     pub t0: f32,
     pub t1: f32,
     pub sigma_t: f32,
 }
 
 /// Ray pieces, kept on the stack for the usual handful of media.
-pub type Segments = SmallVec<[Segment; 4]>;
+pub type Pieces = SmallVec<[Piece; 4]>;
 
 /// All media of a scene, queried as one extinction field: homogeneous boxes (sampled and
 /// attenuated analytically) plus density grids (sampled by tracking).
 #[derive(Clone, Debug, Default)]
 pub struct Media {
     pub media: Vec<MediumDesc>,
-    pub grids: Vec<GridMedium>,
+    /// Density grids, each with its majorants.
+    pub grids: Vec<Heterogeneous>,
 }
 
 /// Parametric overlap of a ray with a box, clipped to [tmin, tmax].
@@ -56,7 +57,17 @@ impl Media {
         }
     }
 
-    pub fn with_grids(media: Vec<MediumDesc>, grids: Vec<GridMedium>) -> Self {
+    pub fn with_grids(media: Vec<MediumDesc>, grids: Vec<Heterogeneous>) -> Self {
+        Media { media, grids }
+    }
+
+    /// Homogeneous `media` and the `fields` with octrees `depth` levels deep baked now (no
+    /// cache: tests and in-memory scenes).
+    pub fn bake(media: Vec<MediumDesc>, fields: &[super::GridMedium], depth: u32) -> Self {
+        let grids = fields
+            .iter()
+            .map(|g| Heterogeneous::build(g.clone(), depth))
+            .collect();
         Media { media, grids }
     }
 
@@ -86,23 +97,9 @@ impl Media {
         self.grids.iter().map(|g| g.sigma_t(p)).sum()
     }
 
-    /// One constant bounding the grids' summed extinction everywhere (Woodcock's global
-    /// majorant).
-    pub fn grid_majorant(&self) -> f32 {
-        self.grids.iter().map(|g| g.majorant()).sum()
-    }
-
-    /// The span of the ray that overlaps any grid's box.
-    pub fn grid_interval(&self, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
-        self.grids
-            .iter()
-            .filter_map(|g| g.interval(ray, tmax))
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    }
-
     /// The constant-extinction pieces of the ray inside any homogeneous medium, front to
     /// back.
-    pub fn segments(&self, ray: &Ray, tmax: f32) -> Segments {
+    pub fn pieces(&self, ray: &Ray, tmax: f32) -> Pieces {
         let spans: SmallVec<[(f32, f32, f32); 4]> = self
             .media
             .iter()
@@ -110,7 +107,7 @@ impl Media {
             .collect();
         let mut cuts: SmallVec<[f32; 8]> = spans.iter().flat_map(|s| [s.0, s.1]).collect();
         cuts.sort_by(f32::total_cmp);
-        let mut out = Segments::new();
+        let mut out = Pieces::new();
         push_pieces(&cuts, &spans, &mut out);
         out
     }
@@ -206,7 +203,7 @@ fn contains(b: &[Vec3; 2], p: Vec3) -> bool {
     p.cmpge(b[0]).all() && p.cmple(b[1]).all()
 }
 
-fn push_pieces(cuts: &[f32], spans: &[(f32, f32, f32)], out: &mut Segments) {
+fn push_pieces(cuts: &[f32], spans: &[(f32, f32, f32)], out: &mut Pieces) {
     for w in cuts.windows(2) {
         let (t0, t1) = (w[0], w[1]);
         if t1 <= t0 {
@@ -221,7 +218,7 @@ fn push_pieces(cuts: &[f32], spans: &[(f32, f32, f32)], out: &mut Segments) {
         if sigma_t > 0.0 {
             match out.last_mut() {
                 Some(last) if last.t1 == t0 && last.sigma_t == sigma_t => last.t1 = t1,
-                _ => out.push(Segment { t0, t1, sigma_t }),
+                _ => out.push(Piece { t0, t1, sigma_t }),
             }
         }
     }
@@ -269,7 +266,7 @@ mod tests {
             fog([0.0, -1.0, -1.0], [3.0, 1.0, 1.0], 2.0),
         ]);
         let ray = Ray::new(Vec3::new(-5.0, 0.0, 0.0), Vec3::X);
-        let seg = media.segments(&ray, 100.0);
+        let seg = media.pieces(&ray, 100.0);
         let expect = [(4.0, 5.0, 1.0), (5.0, 6.0, 3.0), (6.0, 8.0, 2.0)];
         assert_eq!(seg.len(), 3);
         for (s, e) in seg.iter().zip(expect) {

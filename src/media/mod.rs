@@ -9,6 +9,6 @@ pub mod openvdb;
 pub mod phase;
 pub mod procedural;
 
-pub use heterogeneous::GridMedium;
+pub use heterogeneous::{GridMedium, Heterogeneous};
 pub use homogeneous::{Media, MediumDesc};
 pub use phase::Phase;

@@ -38,6 +38,8 @@ struct FileRender {
     width: Option<u32>,
     height: Option<u32>,
     passes: Option<u32>,
+    light_paths: Option<usize>,
+    /// The old name of `light_paths` (it counts light paths, not beams).
     beams_per_pass: Option<usize>,
     alpha: Option<f32>,
     beam_radius: Option<FileRadius>,
@@ -175,6 +177,8 @@ pub struct SceneFile {
     pub sources: Vec<PathBuf>,
     /// What imported files (USD stages) took and left out, one line per prim.
     pub notes: Vec<String>,
+    /// Deprecated keys and the like: one line each, for the command line to print.
+    pub warnings: Vec<String>,
 }
 
 /// Checks of one value, each returning the field's error.
@@ -308,6 +312,13 @@ fn build(path: &Path, file: FileScene, cache: &mut AssetCache) -> Result<SceneFi
     let dir = path.parent().unwrap_or(Path::new("."));
     let ck = Check { path };
     let settings = render_settings(&ck, &file.render)?;
+    let mut warnings = Vec::new();
+    if file.render.beams_per_pass.is_some() {
+        warnings.push(format!(
+            "{}: render.beams_per_pass is deprecated, use render.light_paths (it counts light paths)",
+            path.display()
+        ));
+    }
     let mut scene = Scene::default();
     let mut sources = vec![path.to_path_buf()];
     for (i, m) in file.material.iter().enumerate() {
@@ -368,6 +379,7 @@ fn build(path: &Path, file: FileScene, cache: &mut AssetCache) -> Result<SceneFi
         scene,
         sources,
         notes,
+        warnings,
     })
 }
 
@@ -388,7 +400,7 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         width: r.width.unwrap_or(d.width),
         height: r.height.unwrap_or(d.height),
         passes: r.passes.unwrap_or(d.passes),
-        beams_per_pass: r.beams_per_pass.unwrap_or(d.beams_per_pass),
+        light_paths: r.light_paths.or(r.beams_per_pass).unwrap_or(d.light_paths),
         alpha: r.alpha.unwrap_or(d.alpha),
         beam_radius: radius("render.beam_radius", &r.beam_radius)?,
         photon_radius: radius("render.photon_radius", &r.photon_radius)?,
@@ -444,8 +456,8 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
             return Err(ck.err(field, format!("expected 1..=16384 pixels, got {v}")));
         }
     }
-    if s.beams_per_pass == 0 {
-        return Err(ck.err("render.beams_per_pass", "expected at least 1".into()));
+    if s.light_paths == 0 {
+        return Err(ck.err("render.light_paths", "expected at least 1".into()));
     }
     if !(s.alpha > 0.0 && s.alpha < 1.0) {
         return Err(ck.err(

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::freepath::FreePath;
 use super::light::enters_glass;
-use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode};
+use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode, MAX_TR_BLOCK};
 use super::{timed, Counters};
 use crate::bsdf;
 use crate::estimate::photons::PhotonMap;
@@ -155,12 +155,22 @@ pub struct CameraPass {
     pub counters: Counters,
 }
 
+/// Where a pass stands in its stratified-transmittance block (all from its index).
+struct StratPlan {
+    block: u32,
+    /// Key of the cycle's random stream: block and cycle within it.
+    cycle: u32,
+    slot: usize,
+    /// The store holds another block's paths: draw this one's.
+    regenerate: bool,
+}
+
 /// Everything a camera pass reads.
 pub struct CameraTracer<'a> {
     pub camera: &'a Pinhole,
     pub geometry: &'a Geometry,
     pub media: &'a Media,
-    pub free_path: &'a dyn FreePath,
+    pub free_path: FreePath<'a>,
     /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
     pub tr_mode: TrMode,
@@ -172,19 +182,23 @@ impl CameraTracer<'_> {
     /// the stratified free paths when that estimator is on.
     pub fn trace_pass(&self, seed: u64, pass: u32, strat: Option<&mut StratStore>) -> CameraPass {
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        // Stratified blocks of N passes keep each pixel's jitter for the whole block.
-        let (block, regenerate, mut rows_mut) = match strat {
+        // Stratified blocks of N passes keep each pixel's jitter (and so its free paths)
+        // for the whole block; what pass `pass` picks depends on its index alone.
+        let (plan, mut rows_mut) = match strat {
             Some(st) => {
-                let block = (pass - 1) / st.n as u32;
-                let regen = st.block != Some(block);
+                let n = st.n as u32;
+                let block = (pass - 1) / n;
+                let q = st.cycle() as u32;
+                let plan = StratPlan {
+                    block,
+                    cycle: block * MAX_TR_BLOCK as u32 + (pass - 1) % n / q,
+                    slot: ((pass - 1) % q) as usize,
+                    regenerate: st.block != Some(block),
+                };
                 st.block = Some(block);
-                (
-                    Some(block),
-                    regen,
-                    st.rows_mut(w).into_iter().map(Some).collect(),
-                )
+                (Some(plan), st.rows_mut(w).into_iter().map(Some).collect())
             }
-            None => (None, false, Vec::new()),
+            None => (None, Vec::new()),
         };
         rows_mut.resize_with(h, || None);
         type Row = (Vec<(Rgb, Primary)>, Vec<Secondary>, Counters);
@@ -198,18 +212,21 @@ impl CameraTracer<'_> {
                     .map(|x| {
                         let idx = (y * w + x) as u64;
                         let mut rng = Rng::for_path(seed, pass, Stream::Camera, idx);
-                        let j = match block {
-                            Some(b) => Rng::for_path(seed, b, Stream::CameraJitter, idx).vec2(),
+                        let j = match &plan {
+                            Some(p) => {
+                                Rng::for_path(seed, p.block, Stream::CameraJitter, idx).vec2()
+                            }
                             None => rng.vec2(),
                         };
                         let ray = self.camera.ray(x as f32 + j.x, y as f32 + j.y);
-                        let strat = row_store.as_mut().zip(block).map(|((paths, used), b)| {
+                        let strat = row_store.as_mut().zip(plan.as_ref()).map(|(paths, p)| {
                             let n = paths.len() / w;
                             StratPixel {
                                 paths: &mut paths[x * n..(x + 1) * n],
-                                used: &mut used[x],
-                                regenerate,
-                                block_rng: Rng::for_path(seed, b, Stream::TrBlock, idx),
+                                regenerate: p.regenerate,
+                                block_rng: Rng::for_path(seed, p.block, Stream::TrBlock, idx),
+                                cycle_rng: Rng::for_path(seed, p.cycle, Stream::TrCycle, idx),
+                                slot: p.slot,
                             }
                         });
                         let mut out = Out {
@@ -354,14 +371,20 @@ impl CameraTracer<'_> {
         c: &mut Counters,
         strat: Option<StratPixel>,
     ) -> SegmentTr {
-        if in_glass || self.media.grid_interval(ray, t_surf).is_none() {
+        if in_glass
+            || !self
+                .media
+                .grids
+                .iter()
+                .any(|g| g.interval(ray, t_surf).is_some())
+        {
             return SegmentTr::Clear;
         }
-        let (fp, m) = (self.free_path, self.tr_samples);
+        let (fp, m) = (&self.free_path, self.tr_samples);
         let (mut tick, mut secs) = (c.timing_ticks, c.transmittance_seconds);
         let tr = timed(&mut tick, &mut secs, || match (self.tr_mode, strat) {
             (TrMode::Ratio, _) => SegmentTr::ratio(fp, ray, t_surf, rng, c),
-            (TrMode::Stratified, Some(mut px)) => px.pick(fp, ray, t_surf, m, rng, c),
+            (TrMode::Stratified, Some(mut px)) => px.pick(fp, ray, t_surf, m, c),
             _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
         });
         (c.timing_ticks, c.transmittance_seconds) = (tick, secs);

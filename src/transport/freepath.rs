@@ -1,39 +1,22 @@
-//! Free-path sampling behind one interface: a sampler returns the distance to the next
-//! real collision along a ray (or none before `tmax`). Homogeneous media are sampled
-//! exactly, piece by piece (the paper's eq. 4); density grids by Woodcock (delta) tracking
-//! with one global majorant. Extinctions add, so the collision is the nearer of the two
-//! parts' free paths.
+//! Free-path sampling, one walk for every user. Homogeneous media are sampled exactly,
+//! piece by piece (the paper's eq. 4). Each density grid hands out its majorant segments
+//! along the ray ([`Heterogeneous::majorants`]: one at the global majorant for Woodcock,
+//! the octree's leaves for adaptive sampling); [`FreePath::track`] draws tentative
+//! collisions over them and asks the caller at each one, so delta tracking and ratio
+//! tracking (and any later user) share it. Extinctions add, so a collision is the nearest
+//! of the parts' free paths.
 use crate::geometry::Ray;
-use crate::majorant::{LeafBounds, Octree};
-use crate::media::Media;
+use crate::majorant::LeafBounds;
+use crate::media::{Heterogeneous, Media};
 use crate::sampling::Rng;
 use crate::transport::transmittance::RatioSteps;
 use crate::transport::Counters;
 
-pub trait FreePath: Sync {
-    /// The media this sampler tracks.
-    fn media(&self) -> &Media;
-    /// Distance to the next collision in (0, tmax), or None if the ray gets through:
-    /// the nearer of the homogeneous media's exact free path and the grids'.
-    fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
-        c.free_paths += 1;
-        let t_hom = sample_homogeneous(self.media(), ray, tmax, rng);
-        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
-            .or(t_hom)
-    }
-    /// A free path through the grids alone (camera transmittance estimates use these;
-    /// the homogeneous part of the transmittance is analytic).
-    fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32>;
-    /// Ratio tracking through the grids: pushes (t, 1 - sigma_t(x) / majorant) for every
-    /// tentative collision in [0, tmax], in no particular order.
-    fn ratio_steps(
-        &self,
-        ray: &Ray,
-        tmax: f32,
-        rng: &mut Rng,
-        c: &mut Counters,
-        out: &mut RatioSteps,
-    );
+/// The free-path sampler of a pass: the media and which majorants the grids use.
+#[derive(Clone, Copy)]
+pub struct FreePath<'a> {
+    pub media: &'a Media,
+    pub mode: Mode,
 }
 
 /// Exact free path through the homogeneous media: draw an optical depth -ln(1-u) and walk
@@ -43,7 +26,7 @@ pub fn sample_homogeneous(media: &Media, ray: &Ray, tmax: f32, rng: &mut Rng) ->
         return None;
     }
     let mut tau = -(1.0 - rng.f32()).ln();
-    for s in media.segments(ray, tmax).iter() {
+    for s in media.pieces(ray, tmax).iter() {
         let depth = s.sigma_t * (s.t1 - s.t0);
         if tau < depth {
             return Some(s.t0 + tau / s.sigma_t);
@@ -53,21 +36,19 @@ pub fn sample_homogeneous(media: &Media, ray: &Ray, tmax: f32, rng: &mut Rng) ->
     None
 }
 
-/// The paper's baseline: Woodcock tracking of the grids with one global majorant.
-pub struct Woodcock<'a> {
-    pub media: &'a Media,
-}
-
-/// Bounds of sigma_t over the stretch of ray being tracked (minorant 0 where none is
-/// known, as for global Woodcock).
-type Bounds = LeafBounds;
-
-/// What a tracking visit decides at a tentative collision.
-type Visit<'a> = &'a mut dyn FnMut(f32, Bounds, &mut Rng) -> bool;
+/// What a tracking visit decides at a tentative collision (false: stop).
+type Visit<'a> = &'a mut dyn FnMut(f32, LeafBounds, &mut Rng) -> bool;
 
 /// Tentative collisions of rate `b.majorant` on [t0, t1]; `visit(t, b, rng)` returns
 /// false to stop. Returns false if stopped.
-fn track_constant(t0: f32, t1: f32, b: Bounds, tau: &mut f32, rng: &mut Rng, visit: Visit) -> bool {
+fn track_constant(
+    t0: f32,
+    t1: f32,
+    b: LeafBounds,
+    tau: &mut f32,
+    rng: &mut Rng,
+    visit: Visit,
+) -> bool {
     let mut t = t0;
     loop {
         let room = (t1 - t) * b.majorant;
@@ -83,102 +64,54 @@ fn track_constant(t0: f32, t1: f32, b: Bounds, tau: &mut f32, rng: &mut Rng, vis
     }
 }
 
-/// Tentative collisions along the ray at the rate of the octree leaves' majorants. The
-/// optical depth left to the next one is carried across leaves: one logarithm per
-/// tentative collision, none per leaf crossed.
-fn track_leaves(
-    tree: &Octree,
-    ray: &Ray,
-    tmax: f32,
-    rng: &mut Rng,
-    c: &mut Counters,
-    visit: Visit,
-) {
-    let mut tau = -(1.0 - rng.f32()).ln();
-    tree.walk(ray, tmax, |leaf, a, b| {
-        c.octree_steps += 1;
-        leaf.majorant <= 0.0 || track_constant(a, b, leaf, &mut tau, rng, visit)
-    });
-}
+impl FreePath<'_> {
+    /// Distance to the next collision in (0, tmax), or None if the ray gets through:
+    /// the nearer of the homogeneous media's exact free path and the grids'.
+    pub fn sample(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
+        c.free_paths += 1;
+        let t_hom = sample_homogeneous(self.media, ray, tmax, rng);
+        self.sample_grids(ray, t_hom.unwrap_or(tmax), rng, c)
+            .or(t_hom)
+    }
 
-impl Woodcock<'_> {
-    /// Tentative collisions at the global majorant over the grids' span of the ray.
-    fn track(&self, ray: &Ray, tmax: f32, rng: &mut Rng, visit: Visit) {
-        let Some((t0, t1)) = self.media.grid_interval(ray, tmax) else {
-            return;
-        };
-        let majorant = self.media.grid_majorant();
-        if majorant > 0.0 {
-            let mut tau = -(1.0 - rng.f32()).ln();
-            let b = Bounds {
-                majorant,
-                minorant: 0.0,
-            };
-            track_constant(t0, t1, b, &mut tau, rng, visit);
+    /// Tentative collisions of grid `g` along the ray over its majorant segments, a
+    /// Poisson process of rate majorant(t); the optical depth left to the next one is
+    /// carried across segments (one logarithm per tentative collision, none per segment).
+    pub fn track(
+        &self,
+        g: &Heterogeneous,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+        visit: Visit,
+    ) {
+        let mut tau = -(1.0 - rng.f32()).ln();
+        let steps = g.majorants(ray, tmax, self.mode, |b, t0, t1| {
+            b.majorant <= 0.0 || track_constant(t0, t1, b, &mut tau, rng, visit)
+        });
+        if self.mode == Mode::Adaptive {
+            c.octree_steps += steps;
         }
     }
-}
 
-impl FreePath for Woodcock<'_> {
-    fn media(&self) -> &Media {
-        self.media
-    }
-
-    fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
-        let mut hit = None;
-        self.track(ray, tmax, rng, &mut |t, b, rng| {
-            c.density_lookups += 1;
-            let real = rng.f32() * b.majorant < self.media.grid_sigma_t(ray.at(t));
-            if real {
-                hit = Some(t);
-            }
-            !real
-        });
-        hit
-    }
-
-    fn ratio_steps(
+    /// A free path through the grids alone (camera transmittance estimates use these;
+    /// the homogeneous part of the transmittance is analytic). A tentative collision whose
+    /// uniform falls below the segment's minorant is real without a density lookup
+    /// (sigma_t >= minorant there): the same decision, one lookup fewer. Grids are tracked
+    /// independently and the nearest collision wins.
+    pub fn sample_grids(
         &self,
         ray: &Ray,
         tmax: f32,
         rng: &mut Rng,
         c: &mut Counters,
-        out: &mut RatioSteps,
-    ) {
-        self.track(ray, tmax, rng, &mut |t, b, _| {
-            c.density_lookups += 1;
-            let f = (1.0 - self.media.grid_sigma_t(ray.at(t)) / b.majorant).max(0.0);
-            out.push((t, f));
-            f > 0.0
-        });
-    }
-}
-
-/// Adaptive free-path sampling (Yue et al. 2010): each grid's ray is walked through its
-/// majorant octree front to back, with delta tracking inside each leaf at the leaf's own
-/// majorant; empty leaves cost one step. Tentative collisions are a Poisson process of rate
-/// majorant(t), so the free-path distribution is exactly global Woodcock's. A tentative
-/// collision whose uniform falls below the leaf's minorant is real without a density
-/// lookup (sigma_t >= minorant there): the same decision, one lookup fewer. Grids are
-/// tracked independently and the nearest collision wins (extinctions add).
-pub struct Adaptive<'a> {
-    pub media: &'a Media,
-    /// One octree per entry of `media.grids`.
-    pub octrees: &'a [Octree],
-}
-
-impl FreePath for Adaptive<'_> {
-    fn media(&self) -> &Media {
-        self.media
-    }
-
-    fn sample_grids(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> Option<f32> {
+    ) -> Option<f32> {
         let mut best: Option<f32> = None;
-        for (g, tree) in self.media.grids.iter().zip(self.octrees) {
+        for g in &self.media.grids {
             let limit = best.unwrap_or(tmax);
             let (mut lookups, mut accepts) = (0, 0);
-            track_leaves(tree, ray, limit, rng, c, &mut |t, b, rng| {
-                // Below the leaf's minorant a collision is real whatever the density.
+            self.track(g, ray, limit, rng, c, &mut |t, b, rng| {
                 let u = rng.f32() * b.majorant;
                 let real = if u < b.minorant {
                     accepts += 1;
@@ -198,7 +131,9 @@ impl FreePath for Adaptive<'_> {
         best
     }
 
-    fn ratio_steps(
+    /// Ratio tracking through the grids: pushes (t, 1 - sigma_t(x) / majorant) for every
+    /// tentative collision in [0, tmax], in no particular order.
+    pub fn ratio_steps(
         &self,
         ray: &Ray,
         tmax: f32,
@@ -206,9 +141,9 @@ impl FreePath for Adaptive<'_> {
         c: &mut Counters,
         out: &mut RatioSteps,
     ) {
-        for (g, tree) in self.media.grids.iter().zip(self.octrees) {
+        for g in &self.media.grids {
             let mut lookups = 0;
-            track_leaves(tree, ray, tmax, rng, c, &mut |t, b, _| {
+            self.track(g, ray, tmax, rng, c, &mut |t, b, _| {
                 lookups += 1;
                 let f = (1.0 - g.sigma_t(ray.at(t)) / b.majorant).max(0.0);
                 out.push((t, f));
@@ -220,7 +155,7 @@ impl FreePath for Adaptive<'_> {
 }
 
 /// Which free-path sampler light paths and camera transmittance use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Mode {
     /// Delta tracking per octree leaf (the paper's method; the default).
     Adaptive,
@@ -274,7 +209,10 @@ pub(crate) mod tests {
                 phase: Phase::ISOTROPIC,
             },
         ]);
-        let fp = Woodcock { media: &media };
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Woodcock,
+        };
         let ray = Ray::new(Vec3::new(-2.0, 0.1, 0.2), Vec3::X);
         let tmax = 5.0;
         let n = 20_000;

@@ -130,7 +130,7 @@ pub struct LightTracer<'a> {
     pub lights: &'a LightSampler,
     pub geometry: &'a Geometry,
     pub media: &'a Media,
-    pub free_path: &'a dyn FreePath,
+    pub free_path: FreePath<'a>,
     /// How far (m) a beam reaches past each medium boundary it crosses: the pass's beam
     /// radius. See [`LightTracer::store_beams`].
     pub beam_margin: f32,

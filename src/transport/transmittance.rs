@@ -24,10 +24,13 @@ pub const DEFAULT_TR_SAMPLES: usize = 4;
 pub const DEFAULT_TR_BLOCK: usize = 64;
 pub const MAX_TR_BLOCK: usize = 64;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum TrMode {
+    /// M free paths per pass (the progressive deep shadow map).
     Random,
+    /// The paper's estimator: free paths of a block of passes drawn at once, M strata.
     Stratified,
+    /// Ratio tracking on the octree's local majorants (the default).
     Ratio,
 }
 
@@ -51,7 +54,7 @@ pub enum SegmentTr {
 impl SegmentTr {
     /// Draws `m` grid free paths along `ray` up to `tmax`.
     pub fn random(
-        fp: &dyn FreePath,
+        fp: &FreePath,
         ray: &Ray,
         tmax: f32,
         m: usize,
@@ -72,7 +75,7 @@ impl SegmentTr {
 
     /// Ratio tracking along `ray` up to `tmax`.
     pub fn ratio(
-        fp: &dyn FreePath,
+        fp: &FreePath,
         ray: &Ray,
         tmax: f32,
         rng: &mut Rng,
@@ -139,58 +142,58 @@ pub struct StratStore {
     /// Block whose paths are stored, if any.
     pub block: Option<u32>,
     paths: Vec<f32>,
-    used: Vec<u64>,
 }
 
-/// One pixel's share of the store.
+/// One pixel's share of the store and where this pass stands in its block.
+///
+/// Each of the M strata holds q = N/M sorted paths; every q passes (a cycle) use each of
+/// them once, in an order drawn from the cycle's own random stream. What a pass picks
+/// therefore depends on its index alone, not on which passes ran before it.
 pub struct StratPixel<'a> {
     pub paths: &'a mut [f32],
-    pub used: &'a mut u64,
     /// Draw this block's paths before use.
     pub regenerate: bool,
     /// Random stream of the block (draws the paths).
     pub block_rng: Rng,
+    /// Random stream of the cycle (the order in which its passes use each stratum).
+    pub cycle_rng: Rng,
+    /// This pass's position in its cycle, 0..q.
+    pub slot: usize,
 }
 
 impl StratStore {
-    /// Bytes per pixel: N f32 paths and a 64-bit used mask.
-    pub fn bytes_per_pixel(n: usize) -> usize {
-        n * 4 + 8
-    }
-
     pub fn new(pixels: usize, n: usize, m: usize) -> Self {
         StratStore {
             n,
             m,
             block: None,
             paths: vec![f32::INFINITY; pixels * n],
-            used: vec![0; pixels],
         }
     }
 
-    /// Rows of per-pixel slices (paths, used) for parallel camera passes.
-    pub fn rows_mut(&mut self, width: usize) -> Vec<(&mut [f32], &mut [u64])> {
-        let n = self.n;
-        self.paths
-            .chunks_mut(width * n)
-            .zip(self.used.chunks_mut(width))
-            .collect()
+    /// Rows of per-pixel paths for parallel camera passes.
+    pub fn rows_mut(&mut self, width: usize) -> Vec<&mut [f32]> {
+        self.paths.chunks_mut(width * self.n).collect()
+    }
+
+    /// Passes per cycle (q = N/M).
+    pub fn cycle(&self) -> usize {
+        self.n / self.m
     }
 }
 
 impl StratPixel<'_> {
-    /// This pass's M lengths: one unused path per stratum, chosen at random.
+    /// This pass's M lengths: in each stratum, the path at this pass's slot of the cycle's
+    /// random order (the first `slot + 1` steps of a Fisher-Yates shuffle).
     pub fn pick(
         &mut self,
-        fp: &dyn FreePath,
+        fp: &FreePath,
         ray: &Ray,
         tmax: f32,
         m: usize,
-        rng: &mut Rng,
         c: &mut Counters,
     ) -> SegmentTr {
-        let n = self.paths.len();
-        if self.regenerate || *self.used == full_mask(n) {
+        if self.regenerate {
             for p in self.paths.iter_mut() {
                 c.free_paths += 1;
                 *p = fp
@@ -198,33 +201,19 @@ impl StratPixel<'_> {
                     .unwrap_or(f32::INFINITY);
             }
             self.paths.sort_by(f32::total_cmp);
-            *self.used = 0;
         }
-        let q = n / m;
+        let q = self.paths.len() / m;
         let mut lengths = [f32::INFINITY; MAX_TR_SAMPLES];
+        let mut order = [0u8; MAX_TR_BLOCK];
         for (s, l) in lengths.iter_mut().take(m).enumerate() {
-            let stratum = if q >= 64 {
-                u64::MAX
-            } else {
-                ((1u64 << q) - 1) << (s * q)
-            };
-            let free = !*self.used & stratum;
-            let count = free.count_ones();
-            if count == 0 {
-                continue;
+            for (i, o) in order[..q].iter_mut().enumerate() {
+                *o = i as u8;
             }
-            let mut k = (rng.f32() * count as f32) as u32 % count;
-            let mut bits = free;
-            let j = loop {
-                let j = bits.trailing_zeros();
-                if k == 0 {
-                    break j;
-                }
-                bits &= bits - 1;
-                k -= 1;
-            };
-            *self.used |= 1u64 << j;
-            *l = self.paths[j as usize];
+            for i in 0..=self.slot.min(q - 1) {
+                let j = i + ((self.cycle_rng.f32() * (q - i) as f32) as usize).min(q - i - 1);
+                order.swap(i, j);
+            }
+            *l = self.paths[s * q + order[self.slot.min(q - 1)] as usize];
         }
         SegmentTr::FreePaths {
             lengths,
@@ -233,20 +222,12 @@ impl StratPixel<'_> {
     }
 }
 
-fn full_mask(n: usize) -> u64 {
-    if n >= 64 {
-        u64::MAX
-    } else {
-        (1u64 << n) - 1
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::media::grid::GridBuilder;
-    use crate::media::{GridMedium, Media, Phase};
-    use crate::transport::freepath::Woodcock;
+    use crate::media::{GridMedium, Heterogeneous, Media, Phase};
+    use crate::transport::freepath::{FreePath, Mode};
     use glam::{DAffine3, IVec3, Vec3};
     use std::sync::Arc;
 
@@ -279,7 +260,7 @@ mod tests {
             "ramp".into(),
             [0; 32],
         );
-        Media::with_grids(vec![], vec![g])
+        Media::with_grids(vec![], vec![Heterogeneous::build(g, 5)])
     }
 
     /// Quadrature of the grid's transmittance along `ray` on [0, tmax]: cumulative optical
@@ -312,7 +293,10 @@ mod tests {
     #[test]
     fn deep_shadow_mean_matches_quadrature() {
         let media = ramp_media();
-        let fp = Woodcock { media: &media };
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Woodcock,
+        };
         let ray = Ray::new(
             Vec3::new(-0.5, 0.93, 1.02),
             Vec3::new(1.0, 0.05, 0.02).normalize(),
@@ -340,7 +324,10 @@ mod tests {
     #[test]
     fn woodcock_free_paths_match_quadrature() {
         let media = ramp_media();
-        let fp = Woodcock { media: &media };
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Woodcock,
+        };
         let ray = Ray::new(
             Vec3::new(-0.5, 0.93, 1.02),
             Vec3::new(1.0, 0.05, 0.02).normalize(),
@@ -367,9 +354,8 @@ mod tests {
 mod adaptive_tests {
     use super::tests::{ramp_media, ramp_media_with, QuadTr};
     use super::*;
-    use crate::majorant::Octree;
     use crate::transport::freepath::tests::ks_against;
-    use crate::transport::freepath::{Adaptive, Woodcock};
+    use crate::transport::freepath::{FreePath, Mode};
     use glam::Vec3;
 
     /// Adaptive free paths follow the quadrature transmittance (KS, 0.1 % level), and
@@ -378,18 +364,20 @@ mod adaptive_tests {
     #[test]
     fn adaptive_matches_woodcock_and_quadrature() {
         let media = ramp_media();
-        let trees: Vec<Octree> = media.grids.iter().map(|g| Octree::build(g, 5)).collect();
-        let adaptive = Adaptive {
+        let adaptive = FreePath {
             media: &media,
-            octrees: &trees,
+            mode: Mode::Adaptive,
         };
-        let woodcock = Woodcock { media: &media };
+        let woodcock = FreePath {
+            media: &media,
+            mode: Mode::Woodcock,
+        };
         let ray = Ray::new(
             Vec3::new(-0.5, 0.93, 1.02),
             Vec3::new(1.0, 0.05, 0.02).normalize(),
         );
         let (n, tmax) = (20_000, 3.0);
-        let draw = |fp: &dyn FreePath, seed: u64, c: &mut Counters| {
+        let draw = |fp: &FreePath, seed: u64, c: &mut Counters| {
             let mut rng = Rng::new(seed, 3);
             (0..n)
                 .map(|_| fp.sample(&ray, tmax, &mut rng, c).unwrap_or(f32::INFINITY))
@@ -421,10 +409,9 @@ mod adaptive_tests {
     #[test]
     fn minorant_accepts_keep_free_paths_exact() {
         let media = ramp_media_with(1.0, 20.0);
-        let trees: Vec<Octree> = media.grids.iter().map(|g| Octree::build(g, 5)).collect();
-        let adaptive = Adaptive {
+        let adaptive = FreePath {
             media: &media,
-            octrees: &trees,
+            mode: Mode::Adaptive,
         };
         let ray = Ray::new(
             Vec3::new(0.15, 0.93, 1.02),
@@ -456,28 +443,26 @@ mod adaptive_tests {
 mod estimator_tests {
     use super::tests::{ramp_media, QuadTr};
     use super::*;
-    use crate::majorant::Octree;
-    use crate::transport::freepath::Adaptive;
+    use crate::transport::freepath::{FreePath, Mode};
     use glam::Vec3;
 
-    fn setup() -> (crate::media::Media, Vec<Octree>, Ray) {
+    fn setup() -> (crate::media::Media, Ray) {
         let media = ramp_media();
-        let trees = media.grids.iter().map(|g| Octree::build(g, 5)).collect();
         let ray = Ray::new(
             Vec3::new(-0.5, 0.93, 1.02),
             Vec3::new(1.0, 0.05, 0.02).normalize(),
         );
-        (media, trees, ray)
+        (media, ray)
     }
 
     /// Ratio tracking averages to the quadrature transmittance at several distances
     /// (bound: 5 standard errors of the sample mean).
     #[test]
     fn ratio_tracking_is_unbiased() {
-        let (media, trees, ray) = setup();
-        let fp = Adaptive {
+        let (media, ray) = setup();
+        let fp = FreePath {
             media: &media,
-            octrees: &trees,
+            mode: Mode::Adaptive,
         };
         let quad = QuadTr::new(&media, &ray, 3.0);
         let mut rng = Rng::new(21, 1);
@@ -504,10 +489,10 @@ mod estimator_tests {
     /// assertion keeps 5 of them on each side.
     #[test]
     fn stratified_is_unbiased_with_lower_variance() {
-        let (media, trees, ray) = setup();
-        let fp = Adaptive {
+        let (media, ray) = setup();
+        let fp = FreePath {
             media: &media,
-            octrees: &trees,
+            mode: Mode::Adaptive,
         };
         let quad = QuadTr::new(&media, &ray, 3.0);
         let t = 1.6f32;
@@ -515,19 +500,20 @@ mod estimator_tests {
         let (n, m, blocks) = (64usize, 4usize, 300u32);
         let mut c = Counters::default();
         let mut paths = vec![0.0f32; n];
-        let mut used = 0u64;
         let (mut strat_mse, mut rand_mse, mut strat_sum) = (Vec::new(), Vec::new(), 0.0f64);
         for b in 0..blocks {
             let mut rng = Rng::new(b as u64, 7);
             let (mut se_s, mut se_r) = (0.0f64, 0.0f64);
             for k in 0..n {
+                let q = n / m;
                 let mut px = StratPixel {
                     paths: &mut paths,
-                    used: &mut used,
                     regenerate: k == 0,
                     block_rng: Rng::new(1000 + b as u64, 3),
+                    cycle_rng: Rng::new(2000 + (b as u64) * 64 + (k / q) as u64, 5),
+                    slot: k % q,
                 };
-                let s = px.pick(&fp, &ray, 3.0, m, &mut rng, &mut c).eval(t) as f64;
+                let s = px.pick(&fp, &ray, 3.0, m, &mut c).eval(t) as f64;
                 let r = SegmentTr::random(&fp, &ray, 3.0, m, &mut rng, &mut c).eval(t) as f64;
                 strat_sum += s;
                 se_s += (s - truth).powi(2) / n as f64;

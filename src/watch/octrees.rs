@@ -2,10 +2,12 @@
 //! memory; a changed one goes through the disk cache and is built only on a miss.
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
+use crate::error::Result;
 use crate::majorant::{cache, Octree};
-use crate::media::GridMedium;
+use crate::media::{GridMedium, Heterogeneous, Media};
 use crate::scene::Scene;
 
 /// Where a medium's octree came from.
@@ -20,7 +22,7 @@ pub enum Origin {
         seconds: f64,
         nodes: usize,
         why: Option<String>,
-        stored: Result<String, String>,
+        stored: std::result::Result<String, String>,
     },
 }
 
@@ -47,6 +49,28 @@ pub fn load_or_build(dir: &Path, g: &GridMedium, depth: u32) -> (Octree, Origin)
             .map_err(|e| e.to_string()),
     };
     (t, origin)
+}
+
+/// The scene's media with every grid's octree built now, in memory (benchmarks: one bake
+/// shared by all runs); `report` hears each build.
+pub fn bake(
+    scene: &Scene,
+    depth: u32,
+    mut report: impl FnMut(usize, &GridMedium, &Origin),
+) -> Media {
+    let grids = scene.grid_media.iter().enumerate().map(|(i, g)| {
+        let start = Instant::now();
+        let h = Heterogeneous::build(g.clone(), depth);
+        let origin = Origin::Built {
+            seconds: start.elapsed().as_secs_f64(),
+            nodes: h.octree().nodes.len(),
+            why: None,
+            stored: Err("kept in memory".into()),
+        };
+        report(i, g, &origin);
+        h
+    });
+    Media::with_grids(scene.media.clone(), grids.collect())
 }
 
 /// The log line for medium `i`: "octree built in ..." marks every build (tests count it).
@@ -82,7 +106,7 @@ pub fn describe(i: usize, g: &GridMedium, origin: &Origin) -> String {
 /// The octrees of the current scene, by cache key.
 #[derive(Default)]
 pub struct OctreeStore {
-    trees: HashMap<[u8; 32], Octree>,
+    trees: HashMap<[u8; 32], Arc<Octree>>,
 }
 
 impl OctreeStore {
@@ -90,29 +114,33 @@ impl OctreeStore {
         Self::default()
     }
 
-    /// One octree per grid medium of `scene`, reusing kept ones; `report` hears where each
-    /// came from. Afterwards only this scene's octrees are kept.
-    pub fn prepare(
+    /// The scene's media, every grid with its octree (kept, loaded from the cache in
+    /// `dir` or built and stored there); `report` hears where each came from. Afterwards
+    /// only this scene's octrees are kept.
+    pub fn media(
         &mut self,
         scene: &Scene,
         depth: u32,
         dir: &Path,
         mut report: impl FnMut(usize, &GridMedium, &Origin),
-    ) -> Vec<Octree> {
+    ) -> Result<Media> {
         let mut kept = HashMap::new();
-        let mut out = Vec::with_capacity(scene.grid_media.len());
+        let mut grids = Vec::with_capacity(scene.grid_media.len());
         for (i, g) in scene.grid_media.iter().enumerate() {
             let key = cache::key(g, depth);
             let (tree, origin) = match self.trees.get(&key).or_else(|| kept.get(&key)) {
                 Some(t) => (t.clone(), Origin::Reused),
-                None => load_or_build(dir, g, depth),
+                None => {
+                    let (t, origin) = load_or_build(dir, g, depth);
+                    (Arc::new(t), origin)
+                }
             };
             report(i, g, &origin);
             kept.insert(key, tree.clone());
-            out.push(tree);
+            grids.push(Heterogeneous::new(g.clone(), tree)?);
         }
         self.trees = kept;
-        out
+        Ok(Media::with_grids(scene.media.clone(), grids))
     }
 }
 
@@ -141,7 +169,9 @@ mod tests {
 
     fn origins(store: &mut OctreeStore, scene: &Scene, dir: &Path) -> Vec<Origin> {
         let mut out = Vec::new();
-        store.prepare(scene, 3, dir, |_, _, o| out.push(o.clone()));
+        store
+            .media(scene, 3, dir, |_, _, o| out.push(o.clone()))
+            .unwrap();
         out
     }
 

@@ -1,27 +1,27 @@
-//! One progressive pass = light tracing (beams + photons), camera paths (with the photon
-//! estimate and the camera transmittance), then the beam estimate along the camera
-//! segments, on the CPU ([`Renderer::pass`]) or on the GPU (`gpu::beams`) while the next
-//! pass is traced. [`Renderer`] holds what stays fixed across passes.
+//! One pass of the pipeline up to its beam estimate. [`Tracer`] holds what stays fixed
+//! across passes (geometry, media with their majorants, lights, camera, R1) and traces a
+//! [`PassPlan`]'s light paths (beams and photons) and camera paths (with the photon
+//! estimate and the camera transmittance) into a [`TracedPass`], which an
+//! [`Estimator`](crate::estimate::Estimator) finishes on the CPU or the GPU.
 use glam::Vec3;
 use std::time::Instant;
 
 use crate::error::{Error, Result};
-use crate::estimate::{beams::BeamMap, cpu, photons::PhotonMap, radius};
+use crate::estimate::{beams::BeamMap, cpu, photons::PhotonMap};
 use crate::geometry::Geometry;
-use crate::majorant::Octree;
 use crate::media::homogeneous::ray_box;
 use crate::media::Media;
+use crate::plan::{PassPlan, Plan};
 use crate::scene::{Rgb, Scene};
 use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
 use crate::transport::camera::{CameraPass, CameraTracer, Pinhole};
-use crate::transport::freepath::{Adaptive, FreePath, Mode, Woodcock};
+use crate::transport::freepath::FreePath;
 use crate::transport::light::{LightSampler, LightTracer};
 use crate::transport::transmittance::{StratStore, TrMode, MAX_TR_BLOCK};
 use crate::transport::{Beam, Counters};
 use rayon::prelude::*;
-use std::sync::Mutex;
 
-pub struct Renderer {
+pub struct Tracer {
     pub settings: RenderSettings,
     geometry: Geometry,
     media: Media,
@@ -33,10 +33,6 @@ pub struct Renderer {
     /// Whether camera paths can continue past a surface (then later camera segments need
     /// the beam BVH).
     has_specular: bool,
-    /// Majorant octree of each grid medium (same order as the scene's grid media).
-    octrees: Vec<Octree>,
-    /// Stratified transmittance state carried across the passes of a block.
-    strat: Mutex<Option<StratStore>>,
 }
 
 /// Wall-clock seconds of one pass's stages.
@@ -75,34 +71,21 @@ pub struct TracedPass {
     pub timings: Timings,
 }
 
-pub struct PassResult {
-    pub image: Vec<Rgb>,
-    pub counters: Counters,
-    pub timings: Timings,
-}
-
-impl Renderer {
-    /// A renderer that bakes the grids' octrees in memory (no cache).
+impl Tracer {
+    /// A tracer whose grids' octrees are baked in memory (no cache).
     pub fn new(scene: &Scene, settings: RenderSettings) -> Result<Self> {
-        let octrees = scene
-            .grid_media
-            .iter()
-            .map(|g| Octree::build(g, settings.octree_depth))
-            .collect();
-        Self::with_octrees(scene, settings, octrees)
+        let media = Media::bake(
+            scene.media.clone(),
+            &scene.grid_media,
+            settings.octree_depth,
+        );
+        Self::with_media(scene, settings, media)
     }
 
-    /// A renderer using already built (or cached) octrees, one per grid medium.
-    pub fn with_octrees(
-        scene: &Scene,
-        settings: RenderSettings,
-        octrees: Vec<Octree>,
-    ) -> Result<Self> {
-        if octrees.len() != scene.grid_media.len() {
-            return Err(Error::Other("one octree per grid medium expected".into()));
-        }
+    /// A tracer for `scene` whose media (each grid with its majorants, e.g. from the
+    /// cache) are `media`.
+    pub fn with_media(scene: &Scene, settings: RenderSettings, media: Media) -> Result<Self> {
         let geometry = Geometry::new(scene)?;
-        let media = Media::with_grids(scene.media.clone(), scene.grid_media.clone());
         let camera = Pinhole::new(&scene.camera, settings.width, settings.height);
         let bounds = union(geometry.bounds(), media.bounds()).ok_or_else(|| {
             Error::Other("the scene has neither surfaces nor media to light".into())
@@ -136,13 +119,7 @@ impl Renderer {
                 settings.tr_samples, settings.tr_block
             )));
         }
-        let strat = (settings.tr_mode == TrMode::Stratified && media.has_grids()).then(|| {
-            let pixels = (settings.width * settings.height) as usize;
-            StratStore::new(pixels, settings.tr_block, settings.tr_samples)
-        });
-        Ok(Renderer {
-            strat: Mutex::new(strat),
-            octrees,
+        Ok(Tracer {
             has_specular,
             settings,
             geometry,
@@ -182,41 +159,53 @@ impl Renderer {
             .collect()
     }
 
-    /// Renders pass `i` (1-based) on the CPU.
-    pub fn pass(&self, i: u32) -> PassResult {
-        self.estimate_cpu(self.trace(i, false))
+    /// The plan of this render's passes.
+    pub fn plan(&self) -> Plan {
+        Plan {
+            seed: self.settings.seed,
+            alpha: self.settings.alpha,
+            beam_r1: self.beam_r1,
+            photon_r1: self.photon_r1,
+            light_paths: self.settings.light_paths,
+        }
     }
 
-    /// Light tracing and camera paths of pass `i`; `beam_map` forces the beam BVH (the GPU
-    /// estimate walks it for every segment).
-    pub fn trace(&self, i: u32, beam_map: bool) -> TracedPass {
+    /// The store the stratified camera transmittance carries across a block's passes
+    /// (None for the other estimators or without grids).
+    pub fn strat_store(&self) -> Option<StratStore> {
         let s = &self.settings;
-        let woodcock = Woodcock { media: &self.media };
-        let adaptive = Adaptive {
+        (s.tr_mode == TrMode::Stratified && self.media.has_grids()).then(|| {
+            let pixels = (s.width * s.height) as usize;
+            StratStore::new(pixels, s.tr_block, s.tr_samples)
+        })
+    }
+
+    /// Light tracing and camera paths of pass `p`; `beam_map` forces the beam BVH (the GPU
+    /// estimate walks it for every segment); `strat` is the session's stratified store.
+    pub fn trace(
+        &self,
+        p: &PassPlan,
+        strat: Option<&mut StratStore>,
+        beam_map: bool,
+    ) -> TracedPass {
+        let s = &self.settings;
+        let free_path = FreePath {
             media: &self.media,
-            octrees: &self.octrees,
-        };
-        let free_path: &dyn FreePath = match s.free_path {
-            Mode::Adaptive => &adaptive,
-            Mode::Woodcock => &woodcock,
+            mode: s.free_path,
         };
         let t0 = Instant::now();
-        let beam_r = radius::beam_radius(self.beam_r1, i, s.alpha);
         let lt = LightTracer {
             lights: &self.lights,
             geometry: &self.geometry,
             media: &self.media,
             free_path,
-            beam_margin: beam_r,
+            beam_margin: p.beam_radius,
         };
-        let light = lt.trace_pass(s.seed, i, s.beams_per_pass);
+        let light = lt.trace_pass(p.seed, p.index, p.light_paths);
         let t1 = Instant::now();
         let beam_map = ((beam_map || self.has_specular) && !self.media.is_empty())
-            .then(|| BeamMap::build(&light.beams, beam_r));
-        let photons = PhotonMap::build(
-            &light.photons,
-            radius::photon_radius(self.photon_r1, i, s.alpha),
-        );
+            .then(|| BeamMap::build(&light.beams, p.beam_radius));
+        let photons = PhotonMap::build(&light.photons, p.photon_radius);
         let t2 = Instant::now();
         let ct = CameraTracer {
             camera: &self.camera,
@@ -227,17 +216,16 @@ impl Renderer {
             tr_mode: s.tr_mode,
             photons: &photons,
         };
-        let mut strat = self.strat.lock().unwrap_or_else(|e| e.into_inner());
-        let camera = ct.trace_pass(s.seed, i, strat.as_mut());
+        let camera = ct.trace_pass(p.seed, p.index, strat);
         let t3 = Instant::now();
         let mut counters = light.counters;
         counters.add(&camera.counters);
         TracedPass {
-            index: i,
+            index: p.index,
             camera,
             beams: light.beams,
             beam_map,
-            beam_radius: beam_r,
+            beam_radius: p.beam_radius,
             counters,
             timings: Timings {
                 light_tracing: (t1 - t0).as_secs_f64(),
@@ -259,25 +247,6 @@ impl Renderer {
             t.beam_map.as_ref(),
             t.beam_radius,
         )
-    }
-
-    /// Finishes a traced pass with the beam estimate on the CPU.
-    pub fn estimate_cpu(&self, t: TracedPass) -> PassResult {
-        let start = Instant::now();
-        let (beam_img, evals) = self.beam_image(&t);
-        let mut image = t.camera.image;
-        for (a, b) in image.iter_mut().zip(beam_img) {
-            *a += b;
-        }
-        let mut counters = t.counters;
-        counters.beam_evaluations += evals;
-        let mut timings = t.timings;
-        timings.beam_estimate = start.elapsed().as_secs_f64();
-        PassResult {
-            image,
-            counters,
-            timings,
-        }
     }
 
     pub fn camera(&self) -> &Pinhole {

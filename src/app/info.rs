@@ -1,0 +1,216 @@
+//! `ppb info` (what a scene or grid file holds) and `ppb compare` (image metrics).
+use anyhow::Result;
+use clap::Args;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use ppb::compare::{block_mean, compare as metrics, read_mask};
+use ppb::output;
+use ppb::scene::toml as scene_toml;
+
+#[derive(Args)]
+pub struct CompareArgs {
+    /// Candidate EXR.
+    pub a: PathBuf,
+    /// Reference EXR.
+    pub b: PathBuf,
+    /// Exit with code 1 when rel_l1 is above this.
+    #[arg(long)]
+    pub max_rel_l1: Option<f64>,
+    /// PNG mask: white pixels are left out of the metrics.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Also compare means over K x K pixel blocks (regional error, less sensitive to noise).
+    #[arg(long, value_name = "K")]
+    pub block: Option<usize>,
+}
+
+pub fn compare(args: CompareArgs) -> Result<ExitCode> {
+    let a = output::read_exr(&args.a)?;
+    let b = output::read_exr(&args.b)?;
+    let mask = match &args.mask {
+        Some(p) => {
+            let (w, h, m) = read_mask(p)?;
+            if (w, h) != (b.width, b.height) {
+                anyhow::bail!(
+                    "{}: mask is {w}x{h}, images are {}x{}",
+                    p.display(),
+                    b.width,
+                    b.height
+                );
+            }
+            Some(m)
+        }
+        None => None,
+    };
+    let m = metrics(&a, &b, mask.as_deref())?;
+    if let Some(k) = args.block.filter(|&k| k > 1) {
+        let block_skip = mask.as_ref().map(|m| block_mask(m, b.width, k));
+        let bm = metrics(
+            &block_mean(&a, k),
+            &block_mean(&b, k),
+            block_skip.as_deref(),
+        )?;
+        println!("rel_l1 of {k}x{k} block means {:.6}", bm.rel_l1);
+    }
+    println!("rel_l1     {:.6}", m.rel_l1);
+    println!("rel_rmse   {:.6}", m.rel_rmse);
+    println!(
+        "mean       {:.6} {:.6} {:.6}",
+        m.mean[0], m.mean[1], m.mean[2]
+    );
+    println!(
+        "mean_ref   {:.6} {:.6} {:.6}",
+        m.mean_ref[0], m.mean_ref[1], m.mean_ref[2]
+    );
+    println!("pixels     {}", m.pixels);
+    if let Some(max) = args.max_rel_l1 {
+        if m.rel_l1 > max {
+            println!("FAIL: rel_l1 {:.6} > {max}", m.rel_l1);
+            return Ok(ExitCode::from(1));
+        }
+        println!("ok: rel_l1 {:.6} <= {max}", m.rel_l1);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A block is left out when any of its pixels is.
+fn block_mask(mask: &[bool], width: usize, k: usize) -> Vec<bool> {
+    let bw = width / k;
+    let bh = mask.len() / width / k;
+    let mut out = vec![false; bw * bh];
+    for (i, &m) in mask.iter().enumerate() {
+        let (x, y) = (i % width / k, i / width / k);
+        if m && x < bw && y < bh {
+            out[y * bw + x] = true;
+        }
+    }
+    out
+}
+
+/// Prints one loaded grid: bounds, voxel size, counts, value range and memory.
+fn print_grid(g: &ppb::media::grid::Grid) {
+    let m = g.index_to_world.matrix3;
+    let voxel = glam::DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length());
+    println!(
+        "  voxel size   {:.6} {:.6} {:.6}",
+        voxel.x, voxel.y, voxel.z
+    );
+    if let Some((lo, hi)) = g.active_bbox() {
+        let wlo = g.index_to_world.transform_point3(lo.as_dvec3());
+        let whi = g.index_to_world.transform_point3(hi.as_dvec3());
+        println!("  index bbox   {lo} .. {hi} (inclusive)");
+        println!("  world bbox   {wlo:.4} .. {whi:.4} (voxel centres)");
+    }
+    let active = g.active_voxels();
+    println!(
+        "  active       {active} voxels, {} leaves, {} tiles",
+        g.leaf_count(),
+        g.tiles().len()
+    );
+    if let Some((lo, hi, mean)) = g.active_stats() {
+        println!("  values       min {lo} max {hi} mean {mean:.6} (active voxels)");
+    }
+    let bytes = g.memory_bytes();
+    println!(
+        "  memory       {:.2} MiB, {:.2} bytes per active voxel",
+        bytes as f64 / (1 << 20) as f64,
+        bytes as f64 / active.max(1) as f64
+    );
+}
+
+fn info_grid_file(path: &Path) -> Result<ExitCode> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let grids: Vec<(String, String, bool)> = match ext.as_str() {
+        "nvdb" => ppb::media::nanovdb::list_grids(path)?
+            .into_iter()
+            .map(|g| {
+                let float = g.grid_type == ppb::media::nanovdb::GridType::FLOAT;
+                (
+                    g.name,
+                    format!("{} ({:?})", g.grid_type.name(), g.codec),
+                    float,
+                )
+            })
+            .collect(),
+        "vdb" => ppb::media::openvdb::list_grids(path)?
+            .into_iter()
+            .map(|g| {
+                let float = g.value_type == "Tree_float_5_4_3";
+                let half = if g.half { ", saved as half" } else { "" };
+                (
+                    g.name,
+                    format!("{} (class {}{half})", g.value_type, g.class),
+                    float,
+                )
+            })
+            .collect(),
+        _ => anyhow::bail!("{}: expected a .toml, .vdb or .nvdb file", path.display()),
+    };
+    println!("file         {}", path.display());
+    for (name, kind, float) in grids {
+        println!("grid \"{name}\": {kind}");
+        if float {
+            let g = match ext.as_str() {
+                "vdb" => ppb::media::openvdb::load_grid(path, &name)?,
+                _ => ppb::media::nanovdb::load_grid(path, &name)?,
+            };
+            print_grid(&g);
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn info(scene: &Path) -> Result<ExitCode> {
+    if scene.extension().is_some_and(|e| e != "toml") && !scene_toml::is_usd(scene) {
+        return info_grid_file(scene);
+    }
+    let file = super::load_scene(scene)?;
+    let s = &file.scene;
+    println!("scene      {}", scene.display());
+    println!(
+        "image      {}x{}, {} passes, {} light paths per pass",
+        file.settings.width, file.settings.height, file.settings.passes, file.settings.light_paths
+    );
+    println!(
+        "camera     origin {:?} target {:?} vfov {}",
+        s.camera.origin, s.camera.target, s.camera.vfov_deg
+    );
+    for m in &s.materials {
+        println!("material   {}: {:?}", m.name, m.material);
+    }
+    for m in &s.meshes {
+        println!(
+            "mesh       {}: {} triangles, material {}",
+            m.name,
+            m.triangles.len(),
+            s.materials.get(m.material).map_or("?", |x| x.name.as_str())
+        );
+    }
+    for l in &s.lights {
+        println!("light      {l:?}");
+    }
+    for m in &s.media {
+        println!(
+            "medium     homogeneous {:?}..{:?} sigma_t {} albedo {:?} g {}",
+            m.bounds[0], m.bounds[1], m.sigma_t, m.albedo, m.phase.g
+        );
+    }
+    for g in &s.grid_media {
+        println!(
+            "medium       grid {}: bounds {:?}..{:?}, density_scale {}, majorant {} 1/m, albedo {:?} g {}",
+            g.source, g.bounds[0], g.bounds[1], g.density_scale, g.majorant(), g.albedo, g.phase.g
+        );
+        print_grid(&g.grid);
+    }
+    for p in &file.sources[1..] {
+        println!("source     {}", p.display());
+    }
+    for n in &file.notes {
+        println!("usd        {n}");
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,200 @@
+//! One progressive render (a session, as Cycles calls it): the [`Tracer`] with the scene
+//! data fixed for the render, its [`Plan`] of passes, an [`Estimator`] (CPU or GPU) and
+//! the [`Film`]. [`Session::run`] is the one loop that accumulates passes: `render`,
+//! `watch`, the benchmarks and the conformance tests are configurations of it, with
+//! their own stopping rule and checkpoints in the callback.
+//!
+//! On the GPU, pass i is traced on the CPU and submitted, and the GPU estimates it while
+//! the CPU traces pass i+1; its beam sums stay on the GPU until [`Session::image`].
+use std::time::Instant;
+
+use crate::error::{Error, Result};
+use crate::estimate::{cpu::CpuBeams, Estimator};
+use crate::film::Film;
+use crate::gpu::beams::{GpuBeams, GpuStats};
+use crate::gpu::Gpu;
+use crate::output::Image;
+use crate::pass::{Timings, Tracer};
+use crate::plan::{ramp_paths, PassPlan, Plan, Ramp};
+use crate::transport::transmittance::StratStore;
+use crate::transport::Counters;
+
+pub struct Session {
+    tracer: Tracer,
+    plan: Plan,
+    ramp: Ramp,
+    estimator: Box<dyn Estimator>,
+    film: Film,
+    /// The stratified transmittance's free paths of the current block.
+    strat: Option<StratStore>,
+    pub counters: Counters,
+    pub timings: Timings,
+    /// Light paths and seconds of the last pass (the ramp's input).
+    last: Option<(usize, f64)>,
+}
+
+/// What the loop does after a pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    Stop,
+}
+
+/// A pass the loop just finished.
+#[derive(Clone, Copy, Debug)]
+pub struct PassDone {
+    pub plan: PassPlan,
+    /// Wall time of the pass on the CPU (tracing, and the estimate when it runs there).
+    pub seconds: f64,
+}
+
+impl Session {
+    /// A session estimating beams with `estimator`.
+    pub fn new(tracer: Tracer, estimator: Box<dyn Estimator>) -> Self {
+        let (w, h) = (tracer.settings.width, tracer.settings.height);
+        Session {
+            plan: tracer.plan(),
+            strat: tracer.strat_store(),
+            ramp: Ramp::Off,
+            estimator,
+            film: Film::new(w, h),
+            counters: Counters::default(),
+            timings: Timings::default(),
+            last: None,
+            tracer,
+        }
+    }
+
+    /// A session with the beam estimate on `gpu`, or on the CPU without one.
+    pub fn open(tracer: Tracer, gpu: Option<Gpu>) -> Result<Self> {
+        let estimator: Box<dyn Estimator> = match gpu {
+            Some(g) => {
+                let s = &tracer.settings;
+                let origin = tracer.camera().origin();
+                Box::new(GpuBeams::new(
+                    g,
+                    tracer.media(),
+                    origin,
+                    s.width * s.height,
+                )?)
+            }
+            None => Box::new(CpuBeams),
+        };
+        Ok(Session::new(tracer, estimator))
+    }
+
+    /// A session on the CPU.
+    pub fn cpu(tracer: Tracer) -> Self {
+        Session::new(tracer, Box::new(CpuBeams))
+    }
+
+    /// Sets the light-path counts of the passes after a (re)start.
+    pub fn with_ramp(mut self, ramp: Ramp) -> Self {
+        self.ramp = ramp;
+        self
+    }
+
+    pub fn tracer(&self) -> &Tracer {
+        &self.tracer
+    }
+
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    /// Passes in the film.
+    pub fn passes(&self) -> u32 {
+        self.film.passes()
+    }
+
+    /// "cpu", or the GPU adapter.
+    pub fn device(&self) -> String {
+        self.estimator.describe()
+    }
+
+    pub fn gpu_stats(&self) -> Option<GpuStats> {
+        self.estimator.gpu_stats()
+    }
+
+    /// Adds pass `p` to the film: traced on the CPU, estimated by the estimator (on the
+    /// GPU, still running when this returns).
+    pub fn pass(&mut self, p: &PassPlan) -> Result<()> {
+        let t0 = Instant::now();
+        let beam_map = self.estimator.needs_beam_map();
+        let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
+        let t1 = Instant::now();
+        self.film.add_pass(&traced.camera.image);
+        let evals = self
+            .estimator
+            .estimate(&self.tracer, &traced, &mut self.film, (t0, t1))?;
+        self.counters.add(&traced.counters);
+        self.counters.beam_evaluations += evals;
+        self.timings.add(&traced.timings);
+        self.timings.beam_estimate += t1.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The one loop: renders `passes` (global indices) in order, calling `each` after
+    /// every pass until it answers [`Flow::Stop`]. The ramp (if any) sets each pass's
+    /// light-path count from the previous pass.
+    pub fn run<E: From<Error>>(
+        &mut self,
+        passes: impl IntoIterator<Item = u32>,
+        mut each: impl FnMut(&mut Session, &PassDone) -> std::result::Result<Flow, E>,
+    ) -> std::result::Result<(), E> {
+        for i in passes {
+            let full = self.plan.light_paths;
+            let paths = match (self.ramp, self.last) {
+                (Ramp::Off, _) => full,
+                (Ramp::Doubling, last) => {
+                    let (n, secs) = last.unwrap_or((0, 0.0));
+                    ramp_paths(full, self.film.passes() + 1, n, secs)
+                }
+            };
+            let plan = self.plan.pass_with_paths(i, paths);
+            let start = Instant::now();
+            self.pass(&plan)?;
+            let seconds = start.elapsed().as_secs_f64();
+            self.last = Some((paths, seconds));
+            if each(self, &PassDone { plan, seconds })? == Flow::Stop {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// Renders passes 1..=`passes` and returns the image.
+    pub fn render(&mut self, passes: u32) -> Result<Image> {
+        self.run(1..=passes, |_, _| Ok::<_, Error>(Flow::Continue))?;
+        self.image()
+    }
+
+    /// The image of pass `index` alone, with all the light paths (the film restarts).
+    pub fn pass_image(&mut self, index: u32) -> Result<Image> {
+        self.restart()?;
+        let plan = self.plan.pass(index);
+        self.pass(&plan)?;
+        self.image()
+    }
+
+    /// The current image: the mean over passes (reads the GPU's sums back).
+    pub fn image(&mut self) -> Result<Image> {
+        let pixels = match self.estimator.held()? {
+            None => self.film.image(),
+            Some(acc) => self.film.image_plus(&acc),
+        };
+        Ok(Image {
+            width: self.film.width as usize,
+            height: self.film.height as usize,
+            pixels,
+        })
+    }
+
+    /// Empties the film and the estimator's sums; the next pass starts a new average.
+    pub fn restart(&mut self) -> Result<()> {
+        self.estimator.clear()?;
+        self.film = Film::new(self.film.width, self.film.height);
+        self.last = None;
+        Ok(())
+    }
+}
