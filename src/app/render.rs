@@ -1,7 +1,7 @@
 //! `ppb render`: one session to a pass count or a time budget, with checkpoints and stats.
 use anyhow::Result;
 use clap::Args;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -148,28 +148,35 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
         );
     }
     if let Some(path) = &args.stats {
-        let t = session.tracer();
-        let stats = Stats {
-            scene: args.scene.display().to_string(),
-            passes: session.passes(),
-            width: settings.width,
-            height: settings.height,
-            light_paths: settings.light_paths,
-            beam_r1: t.beam_r1,
-            photon_r1: t.photon_r1,
-            seconds: SecondsSplit::new(
-                start.elapsed().as_secs_f64(),
-                &session.counters,
-                session.timings,
-            ),
-            counters: session.counters,
-            device: session.device(),
-            gpu: session.gpu_stats(),
-        };
-        let json = serde_json::to_string_pretty(&stats)?;
-        output::write_atomic(path, |tmp| {
-            std::fs::write(tmp, &json).map_err(|e| ppb::error::Error::io(tmp, e))
-        })?;
+        write_stats(path, &args, &session, start)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The stats JSON: passes, radii, the wall time split by stage, counters and the device.
+fn write_stats(path: &Path, args: &RenderArgs, session: &Session, start: Instant) -> Result<()> {
+    let t = session.tracer();
+    let settings = &t.settings;
+    let stats = Stats {
+        scene: args.scene.display().to_string(),
+        passes: session.passes(),
+        width: settings.width,
+        height: settings.height,
+        light_paths: settings.light_paths,
+        beam_r1: t.beam_r1,
+        photon_r1: t.photon_r1,
+        seconds: SecondsSplit::new(
+            start.elapsed().as_secs_f64(),
+            &session.counters,
+            session.timings,
+        ),
+        counters: session.counters,
+        device: session.device(),
+        gpu: session.gpu_stats(),
+    };
+    let json = serde_json::to_string_pretty(&stats)?;
+    output::write_atomic(path, |tmp| {
+        std::fs::write(tmp, &json).map_err(|e| ppb::error::Error::io(tmp, e))
+    })?;
+    Ok(())
 }
