@@ -3,6 +3,7 @@
 //! schedule of eq. 3.
 pub mod beams;
 pub mod cpu;
+pub mod eq2;
 pub mod photons;
 pub mod radius;
 pub mod splat;
