@@ -2,8 +2,10 @@
 // `segment_main`, one invocation per segment, walks the beam BVH and writes
 // beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) (and, in w, the number of
 // kernel evaluations); `pixel_main`, one invocation per pixel, adds its segments' results
-// to the pixel's float32 accumulator in segment order (deterministic sums). Mirrors `estimate::beams::BeamMap::radiance` and `media::Media` exactly;
-// the structs match the `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
+// to the pixel's float32 accumulator in segment order (deterministic sums). Mirrors
+// `estimate::eq2` (the pair's term with its edge rule, the camera transmittance),
+// `estimate::beams::BeamMap::radiance` and `media::Media` exactly; the structs match the
+// `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
 
 const MAX_BOXES: u32 = 16u;
 const MAX_GRIDS: u32 = 8u;
@@ -206,6 +208,8 @@ fn grid_tr(seg: Segment, t: f32) -> f32 {
     return tr;
 }
 
+// The camera-transmittance factor, as `estimate::eq2::camera_tr`: the boxes' exact
+// exp(-tau) from the segment origin to t times the grid estimate.
 fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
     var tau = 0.0;
     for (var i = 0u; i < params.box_count; i++) {
@@ -215,7 +219,9 @@ fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
     return exp(-tau) * grid_tr(seg, t);
 }
 
-// The piece's eq. 2 term in xyz, and 1 in w when it crossed the segment within r.
+// The piece's eq. 2 term in xyz, and 1 in w when the pair counts: `estimate::eq2::term`,
+// the same arithmetic (`crossing`) and the same half-open edge rule, t0 <= t < t1,
+// s0 <= s < s1, d < r (sin^2 theta >= 1e-10: not parallel).
 fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let r = params.radius;
     let w = seg.dir;
@@ -225,11 +231,11 @@ fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let w0 = seg.origin - p.origin;
     let d = dot(w, w0);
     let e = dot(psi, w0);
-    let inv_sin2 = 1.0 / max(sin2, 1e-10);
-    let t = (b * e - d) * inv_sin2;
-    let s = (e - b * d) * inv_sin2;
+    let sin2_safe = max(sin2, 1e-10);
+    let t = (b * e - d) / sin2_safe;
+    let s = (e - b * d) / sin2_safe;
     let dist = length(w0 + w * t - psi * s);
-    let ok = sin2 >= 1e-10 && dist < r && t >= seg.t0 && t < seg.t1 && s >= p.s0 && s < p.s1;
+    let ok = sin2 >= 1e-10 && dist < r && seg.t0 <= t && t < seg.t1 && p.s0 <= s && s < p.s1;
     var out = vec4<f32>(0.0);
     if ok {
         let x = seg.origin + w * t;

@@ -8,11 +8,18 @@ use common::gpu_or_skip;
 use std::path::Path;
 use std::process::Command;
 
+use glam::Vec3;
 use ppb::compare::DeviceDiff;
+use ppb::estimate::beams::{BeamMap, BeamPiece};
+use ppb::estimate::eq2;
+use ppb::geometry::Ray;
 use ppb::gpu::beams::GpuBeams;
-use ppb::pass::Tracer;
+use ppb::media::{Media, MediumDesc, Phase};
+use ppb::pass::{Timings, TracedPass, Tracer};
 use ppb::scene::toml::load;
-use ppb::transport::transmittance::TrMode;
+use ppb::transport::camera::{CameraPass, Primary};
+use ppb::transport::transmittance::{RatioSteps, SegmentTr, TrMode, MAX_TR_SAMPLES};
+use ppb::transport::{Beam, Counters};
 
 fn data(p: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -85,6 +92,183 @@ fn gpu_matches_cpu_on_glass_caustic() {
         p.diff.off_pixels
     );
     assert!(p.diff.rel_l1() < 1e-5, "rel_l1 {}", p.diff.rel_l1());
+}
+
+/// Eq. 2's edge rule (`estimate::eq2::term`: t in [0, t_surf), s in [0, length), d < r)
+/// on both devices: one pixel, one camera segment (+x from the origin) and one beam per
+/// pass, the beam crossing the segment on an edge of the rule or just inside or outside
+/// it. Where the rule excludes the pair the GPU adds exactly nothing (no evaluation
+/// either); where it counts, one evaluation and the CPU term within float32 rounding. The
+/// camera transmittance has a box share and a grid estimate with a step exactly at the
+/// crossing (a ratio step, a free path ending there).
+#[test]
+fn gpu_pair_rule_matches_cpu_on_edge_cases() {
+    const R: f32 = 0.25;
+    const EPS: f32 = 1.0 / 1024.0;
+    const T_SURF: f32 = 2.0;
+    let Some(g) = gpu_or_skip("gpu_pair_rule_matches_cpu_on_edge_cases") else {
+        return;
+    };
+    let media = Media::new(vec![MediumDesc {
+        bounds: [Vec3::splat(-8.0), Vec3::splat(8.0)],
+        sigma_t: 0.5,
+        albedo: Vec3::new(0.8, 0.6, 0.4),
+        phase: Phase { g: 0.3 },
+    }]);
+    let mut est = GpuBeams::new(g, &media, Vec3::ZERO, 1).expect("gpu");
+    let ray = Ray::new(Vec3::ZERO, Vec3::X);
+    let power = Vec3::new(3.0, 5.0, 7.0);
+    // A beam along +z crossing the camera ray at t = tx, s = s_at, distance |dy| (exact).
+    let beam = |tx: f32, dy: f32, s_at: f32, len: f32| {
+        Beam::new(Vec3::new(tx, dy, -s_at), Vec3::Z, len, power)
+    };
+    // An oblique beam crossing at t = tx, s = 1, distance 0.1 along w x psi.
+    let oblique = |tx: f32, psi: Vec3| {
+        let off = Vec3::X.cross(psi).normalize() * 0.1;
+        Beam::new(Vec3::new(tx, 0.0, 0.0) + off - psi, psi, 1.5, power)
+    };
+    let ratio = SegmentTr::Ratio(RatioSteps::from_slice(&[(0.5, 0.5), (1.0, 0.25)]));
+    let mut lengths = [f32::INFINITY; MAX_TR_SAMPLES];
+    (lengths[0], lengths[1]) = (1.0, 0.5);
+    let free = SegmentTr::FreePaths { lengths, m: 4 };
+    let clear = SegmentTr::Clear;
+    let cases = [
+        (
+            "t = 0, the segment start",
+            beam(0.0, 0.1, 0.5, 1.0),
+            &clear,
+            true,
+        ),
+        ("t just before 0", beam(-EPS, 0.1, 0.5, 1.0), &clear, false),
+        ("t just after 0", beam(EPS, 0.1, 0.5, 1.0), &clear, true),
+        ("t = t_surf", beam(T_SURF, 0.1, 0.5, 1.0), &clear, false),
+        (
+            "t just before t_surf",
+            beam(T_SURF - EPS, 0.1, 0.5, 1.0),
+            &clear,
+            true,
+        ),
+        (
+            "s = 0, the beam origin",
+            beam(1.0, 0.1, 0.0, 1.0),
+            &clear,
+            true,
+        ),
+        ("s just before 0", beam(1.0, 0.1, -EPS, 1.0), &clear, false),
+        (
+            "s = length, the beam end",
+            beam(1.0, 0.1, 1.0, 1.0),
+            &clear,
+            false,
+        ),
+        (
+            "s just before length",
+            beam(1.0, 0.1, 1.0 - EPS, 1.0),
+            &clear,
+            true,
+        ),
+        (
+            "s just past length",
+            beam(1.0, 0.1, 1.0 + EPS, 1.0),
+            &clear,
+            false,
+        ),
+        (
+            "s on a cut between pieces",
+            beam(1.0, 0.1, 3.0, 12.0),
+            &clear,
+            true,
+        ),
+        (
+            "s = length of 4 pieces",
+            beam(1.0, 0.1, 12.0, 12.0),
+            &clear,
+            false,
+        ),
+        ("d = r", beam(1.0, R, 0.5, 1.0), &clear, false),
+        ("d = r, other side", beam(1.0, -R, 0.5, 1.0), &clear, false),
+        (
+            "d just inside r",
+            beam(1.0, R - EPS, 0.5, 1.0),
+            &clear,
+            true,
+        ),
+        (
+            "d just outside r",
+            beam(1.0, R + EPS, 0.5, 1.0),
+            &clear,
+            false,
+        ),
+        ("d = 0", beam(1.0, 0.0, 0.5, 1.0), &clear, true),
+        ("ratio step at t", beam(1.0, 0.1, 0.5, 1.0), &ratio, true),
+        (
+            "between ratio steps",
+            beam(0.75, 0.1, 0.5, 1.0),
+            &ratio,
+            true,
+        ),
+        ("free path ends at t", beam(1.0, 0.1, 0.5, 1.0), &free, true),
+        (
+            "free paths: one ended",
+            beam(0.75, 0.1, 0.5, 1.0),
+            &free,
+            true,
+        ),
+        (
+            "oblique",
+            oblique(1.5, Vec3::new(0.6, 0.0, 0.8)),
+            &ratio,
+            true,
+        ),
+        (
+            "oblique, back",
+            oblique(0.25, Vec3::new(-0.48, 0.6, 0.64)),
+            &free,
+            true,
+        ),
+    ];
+    for (name, b, tr, counts) in cases {
+        let cpu = eq2::term(
+            &ray,
+            (0.0, T_SURF),
+            &BeamPiece::whole(&b, 0),
+            R,
+            |x, cos| media.in_scatter(x, cos),
+            |t| eq2::camera_tr(&media, &ray, tr, t),
+        );
+        assert_eq!(cpu.is_some(), counts, "{name}: the CPU rule");
+        let pass = TracedPass {
+            index: 1,
+            camera: CameraPass {
+                image: vec![Vec3::ZERO],
+                primaries: vec![Primary {
+                    dir: ray.d,
+                    t_surf: T_SURF,
+                    tr: tr.clone(),
+                }],
+                secondary: Vec::new(),
+                counters: Counters::default(),
+            },
+            beam_map: Some(BeamMap::build(&[b], R)),
+            beams: vec![b],
+            beam_radius: R,
+            counters: Counters::default(),
+            timings: Timings::default(),
+        };
+        est.clear().expect("clear");
+        est.submit(&pass, &media).expect("submit");
+        let gpu = est.read().expect("read back").0[0];
+        match cpu {
+            None => assert_eq!(gpu, [0.0; 4], "{name}: the GPU counted it"),
+            Some(c) => {
+                assert_eq!(gpu[3], 1.0, "{name}: GPU evaluations");
+                for k in 0..3 {
+                    let rel = (gpu[k] - c[k]).abs() / c[k];
+                    assert!(c[k] > 0.0 && rel < 1e-5, "{name}: {gpu:?} vs {c}");
+                }
+            }
+        }
+    }
 }
 
 /// The command line: `--device gpu` renders, says which adapter, and the stats file

@@ -1,10 +1,4 @@
-//! The beam radiance estimate (the paper's eq. 2, Jarosz et al. 2011 "beam x beam 1D"):
-//! for a camera ray x + t w and a beam y + s psi of power Phi and radius r,
-//!   L += k_r(d) sigma_s(x_w) Phi Tr(x <-> x_w) f(psi . -w) / sin(theta),
-//! where x_w is the point of the camera ray closest to the beam's line, d the distance
-//! between the lines, theta the angle between them and k_r the normalized 1D box kernel
-//! 1/(2r) on |d| < r. Short beams carry no transmittance along the beam: the free-path
-//! sampling that ended them already distributed it.
+//! The beam map of one pass for the beam radiance estimate (eq. 2, see [`super::eq2`]).
 //!
 //! Beams are cut into pieces of at most [`PIECE_RADII`] radii and put in an obvhs BVH of
 //! their radius-inflated boxes, so a camera segment only visits beams it can touch. The
@@ -14,6 +8,7 @@ use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
 
+use super::eq2::term;
 use crate::geometry::Ray;
 use crate::scene::Rgb;
 use crate::transport::Beam;
@@ -50,6 +45,20 @@ pub struct BvhNode {
     pub _pad: [u32; 3],
 }
 
+impl BeamPiece {
+    /// All of beam `beam` (number `index`): s in [0, length).
+    pub fn whole(beam: &Beam, index: u32) -> Self {
+        BeamPiece {
+            origin: beam.origin,
+            s0: 0.0,
+            dir: beam.dir,
+            s1: beam.length,
+            power: beam.power,
+            beam: index,
+        }
+    }
+}
+
 pub struct BeamMap {
     /// In the BVH's primitive order, so leaves index them directly.
     pieces: Vec<BeamPiece>,
@@ -77,46 +86,6 @@ fn preorder(bvh: &Bvh2, n: u32, out: &mut Vec<BvhNode>) {
     out[me].skip = out.len() as u32;
 }
 
-/// The normalized 1D kernel: integrates to 1 over the distance d in (-r, r).
-pub fn kernel(d: f32, r: f32) -> f32 {
-    if d.abs() < r {
-        0.5 / r
-    } else {
-        0.0
-    }
-}
-
-/// Closest approach of a camera ray and a beam line.
-pub struct Crossing {
-    /// Parameter on the camera ray.
-    pub t: f32,
-    /// Parameter along the beam.
-    pub s: f32,
-    pub dist: f32,
-    pub sin_theta: f32,
-}
-
-/// Where the lines o + t w and y + s psi (unit directions) come closest.
-pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
-    let b = w.dot(psi);
-    let sin2 = 1.0 - b * b;
-    if sin2 < 1e-10 {
-        return None;
-    }
-    let w0 = o - y;
-    let d = w.dot(w0);
-    let e = psi.dot(w0);
-    let t = (b * e - d) / sin2;
-    let s = (e - b * d) / sin2;
-    let dist = (w0 + w * t - psi * s).length();
-    Some(Crossing {
-        t,
-        s,
-        dist,
-        sin_theta: sin2.sqrt(),
-    })
-}
-
 impl BeamMap {
     pub fn build(beams: &[Beam], radius: f32) -> Self {
         let max_len = PIECE_RADII * radius;
@@ -127,15 +96,19 @@ impl BeamMap {
             let step = b.length / n as f32;
             let (y, psi) = (Vec3A::from(b.origin), Vec3A::from(b.dir));
             for k in 0..n {
-                let (s0, s1) = (k as f32 * step, (k + 1) as f32 * step);
+                // The last piece ends at the beam's length exactly (n * step may round
+                // past or short of it), so the pieces partition [0, length).
+                let s0 = k as f32 * step;
+                let s1 = if k + 1 == n {
+                    b.length
+                } else {
+                    (k + 1) as f32 * step
+                };
                 let (a, c) = (y + psi * s0, y + psi * s1);
                 pieces.push(BeamPiece {
-                    origin: b.origin,
                     s0,
-                    dir: b.dir,
                     s1,
-                    power: b.power,
-                    beam: i as u32,
+                    ..BeamPiece::whole(b, i as u32)
                 });
                 boxes.push(Aabb::new(a.min(c) - radius, a.max(c) + radius));
             }
@@ -186,9 +159,9 @@ impl BeamMap {
         out
     }
 
-    /// Sum of eq. 2 over the beams near the camera segment [t0, t1] of `ray`.
-    /// `in_scatter(x, cos)` is sigma_s(x) f(cos) and `tr(t)` the camera transmittance from
-    /// the ray origin to t.
+    /// Sum of eq. 2 ([`term`], with its edge rule) over the beam pieces near the camera
+    /// segment [t0, t1) of `ray`. `in_scatter(x, cos)` is sigma_s(x) f(cos) and `tr(t)` the
+    /// camera transmittance from the ray origin to t.
     pub fn radiance(
         &self,
         ray: &Ray,
@@ -201,22 +174,14 @@ impl BeamMap {
         let Some(bvh) = &self.bvh else {
             return Rgb::ZERO;
         };
-        let r = self.radius;
         let mut sum = Rgb::ZERO;
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
         bvh.ray_traverse_anyhit(q, |_, id| {
             let piece = &self.pieces[id];
-            let psi = Vec3::from(piece.dir);
-            let Some(c) = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi) else {
-                return;
-            };
-            if c.dist >= r || c.t < t0 || c.t >= t1 || c.s < piece.s0 || c.s >= piece.s1 {
-                return;
+            if let Some(l) = term(ray, (t0, t1), piece, self.radius, &in_scatter, &tr) {
+                *evaluations += 1;
+                sum += l;
             }
-            *evaluations += 1;
-            let x = ray.at(c.t);
-            let f = in_scatter(x, psi.dot(-ray.d));
-            sum += f * Vec3::from(piece.power) * (kernel(c.dist, r) * tr(c.t) / c.sin_theta);
         });
         sum
     }
@@ -225,25 +190,8 @@ impl BeamMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimate::eq2::{crossing, kernel};
     use crate::sampling::{uniform_sphere, Rng};
-
-    #[test]
-    fn kernel_is_normalized() {
-        let r = 0.037;
-        let n = 100_000;
-        let h = 4.0 * r / n as f32;
-        let integral: f32 = (0..n)
-            .map(|i| kernel(-2.0 * r + (i as f32 + 0.5) * h, r) * h)
-            .sum();
-        assert!((integral - 1.0).abs() < 1e-3);
-    }
-
-    #[test]
-    fn crossing_of_perpendicular_lines() {
-        let c = crossing(Vec3::ZERO, Vec3::X, Vec3::new(2.0, 0.3, -1.0), Vec3::Z).unwrap();
-        assert!((c.t - 2.0).abs() < 1e-6 && (c.s - 1.0).abs() < 1e-6);
-        assert!((c.dist - 0.3).abs() < 1e-6 && (c.sin_theta - 1.0).abs() < 1e-6);
-    }
 
     /// With sigma_s f = 1 the estimate integrates the fluence along the camera segment;
     /// isotropic beams of unit power and line-length density lambda (m/m^3) have fluence
@@ -319,5 +267,78 @@ mod tests {
             }
             assert!((a - b).abs() < 1e-3 * b.max(1.0), "{a} vs {b}");
         }
+    }
+
+    /// Each beam's pieces partition [0, length) exactly: the first starts at 0, each starts
+    /// where the previous ends, and the last ends at the length (lengths here are chosen
+    /// among those where n * (length / n) rounds away from the length).
+    #[test]
+    fn pieces_partition_each_beam_exactly() {
+        let r = 0.01;
+        let mut rng = Rng::new(3, 1);
+        let lengths: Vec<f32> = std::iter::repeat_with(|| rng.f32() * 5.0)
+            .filter(|&l| {
+                let n = (l / (PIECE_RADII * r)).ceil().max(1.0);
+                n * (l / n) != l
+            })
+            .take(50)
+            .collect();
+        let beams: Vec<Beam> = lengths
+            .iter()
+            .map(|&l| Beam::new(Vec3::ZERO, Vec3::X, l, Vec3::ONE))
+            .collect();
+        let map = BeamMap::build(&beams, r);
+        for (i, b) in beams.iter().enumerate() {
+            let mut mine: Vec<&BeamPiece> =
+                map.pieces().iter().filter(|p| p.beam == i as u32).collect();
+            mine.sort_by(|a, b| a.s0.total_cmp(&b.s0));
+            assert_eq!(mine[0].s0, 0.0);
+            for w in mine.windows(2) {
+                assert_eq!(w[0].s1, w[1].s0);
+            }
+            assert_eq!(mine.last().unwrap().s1, b.length, "beam {i}");
+        }
+    }
+
+    /// The gather applies the pair rule of [`term`]: a beam of 4 pieces crossed exactly on
+    /// a cut between two pieces counts once, as the whole beam would; crossings at the
+    /// segment start, on the beam's end or at distance r follow the rule too.
+    #[test]
+    fn gather_counts_edge_crossings_by_the_pair_rule() {
+        let r = 0.25;
+        let eps = 1.0 / 1024.0;
+        let scatter = |x: Vec3, _| Vec3::new(1.0 + x.x, 1.0, 1.0);
+        let tr = |t: f32| 1.0 / (1.0 + t);
+        let ray = Ray::new(Vec3::ZERO, Vec3::X);
+        // A beam along +z crossing the ray at t = tx, s = s_at, distance dy.
+        let beam = |tx: f32, dy: f32, s_at: f32, len: f32| {
+            Beam::new(Vec3::new(tx, dy, -s_at), Vec3::Z, len, Vec3::splat(2.0))
+        };
+        let cases = [
+            (beam(1.0, 0.1, 3.0, 12.0), true),
+            (beam(1.0, 0.1, 6.0, 12.0), true),
+            (beam(1.0, 0.1, 12.0, 12.0), false),
+            (beam(1.0, 0.1, 12.0 - eps, 12.0), true),
+            (beam(0.0, 0.1, 1.0, 2.0), true),
+            (beam(-eps, 0.1, 1.0, 2.0), false),
+            (beam(2.0, 0.1, 1.0, 2.0), false),
+            (beam(1.0, r, 1.0, 2.0), false),
+            (beam(1.0, r - eps, 1.0, 2.0), true),
+        ];
+        for (k, (b, counts)) in cases.into_iter().enumerate() {
+            let map = BeamMap::build(&[b], r);
+            let mut evals = 0;
+            let got = map.radiance(&ray, 0.0, 2.0, scatter, tr, &mut evals);
+            let want = term(&ray, (0.0, 2.0), &BeamPiece::whole(&b, 0), r, scatter, tr);
+            assert_eq!(want.is_some(), counts, "case {k}");
+            assert_eq!(evals, u64::from(counts), "case {k}");
+            assert_eq!(got, want.unwrap_or(Rgb::ZERO), "case {k}");
+        }
+        assert_eq!(
+            BeamMap::build(&[beam(1.0, 0.1, 3.0, 12.0)], r)
+                .pieces()
+                .len(),
+            4
+        );
     }
 }

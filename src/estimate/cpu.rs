@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 use super::beams::BeamMap;
+use super::eq2::camera_tr;
 use super::splat::splat;
 use super::Estimator;
 use crate::error::Result;
@@ -82,7 +83,7 @@ fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Rgb, u64)
     let mut evals = 0;
     let mut l = Rgb::ZERO;
     for (t0, t1) in media.spans(ray, s.t_surf) {
-        let tr = |t: f32| (-media.optical_depth(ray, 0.0, t)).exp() * s.tr.eval(t);
+        let tr = |t| camera_tr(media, ray, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
         l += map.radiance(ray, t0, t1, scatter, tr, &mut evals);
     }

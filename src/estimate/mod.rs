@@ -4,6 +4,7 @@
 //! on the CPU ([`cpu::CpuBeams`]) or on the GPU (`gpu::beams::GpuBeams`).
 pub mod beams;
 pub mod cpu;
+pub mod eq2;
 pub mod photons;
 pub mod radius;
 pub mod splat;

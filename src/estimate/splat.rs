@@ -9,7 +9,9 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::beams::{crossing, kernel};
+use super::beams::BeamPiece;
+use super::eq2::{camera_tr, term};
+use crate::geometry::Ray;
 use crate::media::Media;
 use crate::scene::Rgb;
 use crate::transport::camera::{Pinhole, Primary};
@@ -55,17 +57,17 @@ pub fn splat(
             let mut img = vec![Rgb::ZERO; rows * w];
             let mut evals = 0u64;
             for &bi in list {
-                let beam = &beams[bi as usize];
                 let Some(line) = &lines[bi as usize] else {
                     continue;
                 };
+                let piece = BeamPiece::whole(&beams[bi as usize], bi);
                 for y in row0..row0 + rows {
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {
                         continue;
                     };
                     for x in x0..=x1 {
                         let p = &primaries[y * w + x];
-                        if let Some(l) = contribution(origin, p, beam, radius, media) {
+                        if let Some(l) = contribution(origin, p, &piece, radius, media) {
                             img[(y - row0) * w + x] += l;
                             evals += 1;
                         }
@@ -84,18 +86,14 @@ pub fn splat(
     (img, evals)
 }
 
-/// Eq. 2 for one beam and one primary segment, or None when they do not cross within r.
-fn contribution(o: Vec3, p: &Primary, beam: &Beam, r: f32, media: &Media) -> Option<Rgb> {
-    let psi = Vec3::from(beam.dir);
-    let c = crossing(o, p.dir, Vec3::from(beam.origin), psi)?;
-    if c.dist >= r || c.t <= 0.0 || c.t >= p.t_surf || c.s < 0.0 || c.s >= beam.length {
-        return None;
-    }
-    let x = o + p.dir * c.t;
-    let f = media.in_scatter(x, psi.dot(-p.dir));
-    let tau = media.optical_depth(&crate::geometry::Ray::new(o, p.dir), 0.0, c.t);
-    let tr = (-tau).exp() * p.tr.eval(c.t);
-    Some(f * Vec3::from(beam.power) * (kernel(c.dist, r) * tr / c.sin_theta))
+/// Eq. 2 for one beam and one primary segment [0, t_surf), or None when the pair does not
+/// count (the rule of [`term`]).
+fn contribution(o: Vec3, p: &Primary, beam: &BeamPiece, r: f32, media: &Media) -> Option<Rgb> {
+    let ray = Ray::new(o, p.dir);
+    let scatter = |x, cos| media.in_scatter(x, cos);
+    term(&ray, (0.0, p.t_surf), beam, r, scatter, |t| {
+        camera_tr(media, &ray, &p.tr, t)
+    })
 }
 
 /// A beam projected to the film: a 2D segment with a half-width in pixels.

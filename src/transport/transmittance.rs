@@ -92,13 +92,15 @@ impl SegmentTr {
         SegmentTr::Ratio(steps)
     }
 
-    /// Estimated grid transmittance from the segment start to `t`.
+    /// Estimated grid transmittance from the segment start to `t`. A step applies after
+    /// its t, as in [`Self::steps`] (what the GPU reads): a free path that ends exactly at
+    /// t still reaches t, a ratio step exactly at t is not yet taken.
     pub fn eval(&self, t: f32) -> f32 {
         match self {
             SegmentTr::Clear => 1.0,
             SegmentTr::FreePaths { lengths, m } => {
                 let m = *m as usize;
-                lengths[..m].iter().filter(|&&l| l > t).count() as f32 / m as f32
+                lengths[..m].iter().filter(|&&l| l >= t).count() as f32 / m as f32
             }
             SegmentTr::Ratio(steps) => {
                 let i = steps.partition_point(|s| s.0 < t);
