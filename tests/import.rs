@@ -675,3 +675,95 @@ fn gltf_synthetic_hierarchy_quantization_and_lights() {
     assert!(imported.camera.is_none());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Every file in `dir` appears exactly once in `read` (and nothing else does).
+fn assert_each_read_once(dir: &Path, read: &[PathBuf]) {
+    let mut got: Vec<PathBuf> = read.to_vec();
+    got.sort();
+    let mut want: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path().canonicalize().unwrap())
+        .collect();
+    want.sort();
+    assert_eq!(got, want, "files read, in order: {read:?}");
+}
+
+/// A scene with a glTF (and its .bin), an OBJ (and its .mtl) and two grid media on one
+/// VDB: each file is read from disk once, and the grid's octree cache key is still
+/// blake3(VDB bytes, grid name, scale, transform) as before.
+#[test]
+fn scene_import_reads_each_file_once() {
+    use ppb::scene::assets::AssetCache;
+    let dir = scratch("read-once");
+    for f in [
+        "glass_scene.gltf",
+        "glass_scene.bin",
+        "glass_scene.obj",
+        "glass_scene.mtl",
+    ] {
+        std::fs::copy(data(f), dir.join(f)).unwrap();
+    }
+    let vdb =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance/smoke-grid/density.vdb");
+    std::fs::copy(&vdb, dir.join("density.vdb")).unwrap();
+    let text = "[camera]\norigin = [0, 1, 5]\ntarget = [0, 0, 0]\nvfov = 40\n\
+                [[import]]\npath = \"glass_scene.gltf\"\n[[mesh]]\npath = \"glass_scene.obj\"\n\
+                [[light]]\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = [1, 1, 1]\n\
+                [[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ndensity_scale = 8.0\nalbedo = [0.9, 0.9, 0.9]\n\
+                [[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ngrid = \"density\"\ndensity_scale = 4.0\nalbedo = [0.5, 0.5, 0.5]\n\
+                transform = { translate = [1, 0, 0] }\n";
+    let path = write(&dir, "scene.toml", text);
+    let mut cache = AssetCache::new();
+    let file = ppb::scene::toml::load_cached(&path, &mut cache).expect("scene loads");
+    assert_each_read_once(&dir, &cache.files_read());
+    assert_eq!(file.scene.grid_media.len(), 2);
+
+    let bytes = std::fs::read(dir.join("density.vdb")).unwrap();
+    let key = |suffix: String| {
+        let mut h = blake3::Hasher::new();
+        h.update(&bytes);
+        h.update(suffix.as_bytes());
+        *h.finalize().as_bytes()
+    };
+    let g = &file.scene.grid_media;
+    let id = glam::DAffine3::IDENTITY;
+    let moved = glam::DAffine3::from_translation(glam::DVec3::X);
+    assert_eq!(g[0].source_hash, key(format!("density 8 {id:?}")));
+    assert_eq!(g[1].source_hash, key(format!("density 4 {moved:?}")));
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// One extension dispatch: an unknown import or grid extension is an error naming the
+/// scene, the field, the file and the extensions expected.
+#[test]
+fn unknown_extensions_name_file_and_expected_ones() {
+    let dir = scratch("extensions");
+    let scene = |extra: &str| {
+        format!(
+            "[camera]\norigin = [0, 1, 5]\ntarget = [0, 0, 0]\nvfov = 40\n\
+             [[light]]\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = [1, 1, 1]\n{extra}"
+        )
+    };
+    let err = |extra: &str| {
+        let p = write(&dir, "scene.toml", &scene(extra));
+        ppb::scene::toml::load(&p).err().expect("fails").to_string()
+    };
+    let e = err("[[mesh]]\npath = \"floor.ply\"\n");
+    assert!(e.contains("scene.toml: mesh[0].path: "), "{e}");
+    assert!(
+        e.contains("floor.ply: expected a .obj, .gltf, .glb, .usd, .usda, .usdc or .usdz file"),
+        "{e}"
+    );
+    let e = err("[[medium]]\ntype = \"grid\"\npath = \"smoke.bgeo\"\ndensity_scale = 1.0\nalbedo = [0.9, 0.9, 0.9]\n");
+    assert!(e.contains("scene.toml: medium[0].path: "), "{e}");
+    assert!(
+        e.contains("smoke.bgeo: expected a .vdb or .nvdb file"),
+        "{e}"
+    );
+    let e = ppb::scene::toml::load(&data("glass_scene.obj"))
+        .err()
+        .expect("an OBJ is not a scene")
+        .to_string();
+    assert!(e.contains("glass_scene.obj: not a scene file"), "{e}");
+    let _ = std::fs::remove_dir_all(dir);
+}

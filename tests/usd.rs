@@ -813,3 +813,141 @@ def Xform "B" (
         1e-6
     ));
 }
+
+/// A USD scene (root `.usd` that the reader peeks then reads, a sublayer, a Volume on
+/// a VDB) and a .usdz package: each file is read from disk once per load, through the
+/// asset cache's reader, and the Volume's octree key is blake3(VDB bytes, grid name,
+/// scale, transform) as before.
+#[test]
+fn usd_scene_reads_each_file_once() {
+    use ppb::scene::assets::AssetCache;
+    let dir = scratch("read-once");
+    let vdb = data("../smoke_plume.vdb");
+    std::fs::copy(&vdb, dir.join("smoke.vdb")).unwrap();
+    let layer = format!(
+        r#"{HEADER}
+def DistantLight "Sun"
+{{
+    float inputs:intensity = 3
+}}
+def Camera "Cam"
+{{
+}}
+"#
+    );
+    write_stage(&dir, "lights.usda", &layer);
+    let root = r#"#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+    subLayers = [@lights.usda@]
+)
+def Volume "Smoke"
+{
+    custom float ppb:densityScale = 8
+    rel field:density = </Smoke/density>
+    def OpenVDBAsset "density"
+    {
+        token fieldName = "density"
+        asset filePath = @smoke.vdb@
+    }
+}
+"#;
+    let stage = write_stage(&dir, "stage.usd", root);
+    let mut cache = AssetCache::new();
+    let file = ppb::scene::toml::load_cached(&stage, &mut cache).expect("stage loads");
+    let mut read = cache.files_read();
+    read.sort();
+    let mut want: Vec<PathBuf> = ["lights.usda", "smoke.vdb", "stage.usd"]
+        .iter()
+        .map(|f| dir.join(f).canonicalize().unwrap())
+        .collect();
+    want.sort();
+    assert_eq!(read, want, "{:?}", cache.files_read());
+    let g = &file.scene.grid_media;
+    assert_eq!(g.len(), 1);
+    assert_eq!(g[0].density_scale, 8.0);
+    let mut h = blake3::Hasher::new();
+    h.update(&std::fs::read(&vdb).unwrap());
+    h.update(format!("density 8 {:?}", glam::DAffine3::IDENTITY).as_bytes());
+    assert_eq!(g[0].source_hash, *h.finalize().as_bytes());
+
+    // A .usdz: the package is read once for the hash, the root layer and its lookups.
+    let pkg = dir.join("pkg");
+    std::fs::create_dir_all(&pkg).unwrap();
+    let p = pkg.join("pkg.usdz");
+    let mut w = openusd::usdz::ArchiveWriter::create(&p).expect("create usdz");
+    let bytes = std::fs::read(data("glass_smoke.usdc")).unwrap();
+    w.add_layer("glass_smoke.usdc", &bytes).expect("add layer");
+    w.finish().expect("finish usdz");
+    std::fs::copy(&vdb, dir.join("smoke_plume.vdb")).unwrap();
+    let mut cache = AssetCache::new();
+    ppb::scene::toml::load_cached(&p, &mut cache).expect("usdz loads");
+    let mut read = cache.files_read();
+    read.sort();
+    let mut want = vec![
+        p.canonicalize().unwrap(),
+        dir.join("smoke_plume.vdb").canonicalize().unwrap(),
+    ];
+    want.sort();
+    assert_eq!(read, want, "{:?}", cache.files_read());
+}
+
+/// The Volume's `ppb:*` parameters go through the same checks as a TOML medium's:
+/// errors name the stage, the attribute (as a property path) and what was expected.
+#[test]
+fn volume_parameters_are_checked_like_toml_media() {
+    let dir = scratch("volume-params");
+    std::fs::copy(data("../smoke_plume.vdb"), dir.join("smoke.vdb")).unwrap();
+    let stage = |attrs: &str| {
+        format!(
+            r#"{HEADER}
+def Volume "Smoke"
+{{
+    {attrs}
+    rel field:density = </Smoke/density>
+    def OpenVDBAsset "density"
+    {{
+        token fieldName = "density"
+        asset filePath = @smoke.vdb@
+    }}
+}}
+"#
+        )
+    };
+    let e = err_text(&write_stage(
+        &dir,
+        "a.usda",
+        &stage("custom color3f ppb:albedo = (0.5, 1.5, 0.5)"),
+    ));
+    assert!(
+        e.contains("a.usda: /Smoke.ppb:albedo: expected values in [0, 1]"),
+        "{e}"
+    );
+    let e = err_text(&write_stage(
+        &dir,
+        "s.usda",
+        &stage("custom float ppb:densityScale = -2"),
+    ));
+    assert!(
+        e.contains("s.usda: /Smoke.ppb:densityScale: expected a finite number >= 0, got -2"),
+        "{e}"
+    );
+    let e = err_text(&write_stage(
+        &dir,
+        "g.usda",
+        &stage("custom float ppb:g = 1"),
+    ));
+    assert!(
+        e.contains("g.usda: /Smoke.ppb:g: expected g in (-1, 1)"),
+        "{e}"
+    );
+    let imp = load_usd(&write_stage(
+        &dir,
+        "ok.usda",
+        &stage("custom float ppb:g = 0.5"),
+    ))
+    .expect("imports");
+    assert_eq!(imp.grid_media[0].phase.g, 0.5);
+    assert_eq!(imp.grid_media[0].albedo, Vec3::splat(0.9));
+}

@@ -6,7 +6,6 @@ use std::process::ExitCode;
 
 use ppb::compare::{block_mean, compare as metrics, read_mask};
 use ppb::output;
-use ppb::scene::toml as scene_toml;
 
 #[derive(Args)]
 pub struct CompareArgs {
@@ -120,52 +119,19 @@ fn print_grid(g: &ppb::media::grid::Grid) {
 }
 
 fn info_grid_file(path: &Path) -> Result<ExitCode> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    let grids: Vec<(String, String, bool)> = match ext.as_str() {
-        "nvdb" => ppb::media::nanovdb::list_grids(path)?
-            .into_iter()
-            .map(|g| {
-                let float = g.grid_type == ppb::media::nanovdb::GridType::FLOAT;
-                (
-                    g.name,
-                    format!("{} ({:?})", g.grid_type.name(), g.codec),
-                    float,
-                )
-            })
-            .collect(),
-        "vdb" => ppb::media::openvdb::list_grids(path)?
-            .into_iter()
-            .map(|g| {
-                let float = g.value_type == "Tree_float_5_4_3";
-                let half = if g.half { ", saved as half" } else { "" };
-                (
-                    g.name,
-                    format!("{} (class {}{half})", g.value_type, g.class),
-                    float,
-                )
-            })
-            .collect(),
-        _ => anyhow::bail!("{}: expected a .toml, .vdb or .nvdb file", path.display()),
-    };
+    let file = ppb::scene::grids::GridFile::open(path)?;
     println!("file         {}", path.display());
-    for (name, kind, float) in grids {
-        println!("grid \"{name}\": {kind}");
-        if float {
-            let g = match ext.as_str() {
-                "vdb" => ppb::media::openvdb::load_grid(path, &name)?,
-                _ => ppb::media::nanovdb::load_grid(path, &name)?,
-            };
-            print_grid(&g);
+    for g in file.grids()? {
+        println!("grid \"{}\": {}", g.name, g.kind);
+        if g.loadable {
+            print_grid(&file.load(&g.name)?);
         }
     }
     Ok(ExitCode::SUCCESS)
 }
 
 pub fn info(scene: &Path) -> Result<ExitCode> {
-    if scene.extension().is_some_and(|e| e != "toml") && !scene_toml::is_usd(scene) {
+    if ppb::scene::Format::detect(scene).is_some_and(ppb::scene::Format::is_grid) {
         return info_grid_file(scene);
     }
     let file = super::load_scene(scene)?;

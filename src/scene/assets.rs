@@ -3,40 +3,31 @@
 //!
 //! Entries are keyed by what was asked (path, grid name, procedural parameters) and checked
 //! against a blake3 of the bytes of every file the asset was built from, so an edited,
-//! truncated or replaced file is always loaded again; only the hashing reads it.
+//! truncated or replaced file is always loaded again. Files go through [`Files`]: each is
+//! read at most once per load (the bytes hashed are the bytes parsed), and a file whose
+//! length and modification time are unchanged since an earlier load is not read at all
+//! to be hashed (see [`super::files`] for the racy-timestamp rule).
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use super::files::Files;
 use super::Imported;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::media::grid::Grid;
 
-/// blake3 of the files' bytes in order (with their paths, so a swap is a change).
-pub fn hash_files(files: &[PathBuf]) -> Result<[u8; 32]> {
-    let mut h = blake3::Hasher::new();
-    for f in files {
-        let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
-        h.update(f.as_os_str().as_encoded_bytes());
-        h.update(&(bytes.len() as u64).to_le_bytes());
-        h.update(&bytes);
-    }
-    Ok(*h.finalize().as_bytes())
-}
-
 struct ImportEntry {
-    /// Hash of the imported file, taken before it was parsed: an edit during the parse
-    /// then shows as a change on the next load instead of being cached as seen.
+    /// Hash of the bytes of the imported file that were parsed.
     main: [u8; 32],
-    /// Its sidecars (.bin, .mtl, layers, VDBs) and their hash.
-    sidecars: Vec<PathBuf>,
-    side: [u8; 32],
+    /// Its sidecars (.bin, .mtl, layers, VDBs), each with its hash.
+    sidecars: Vec<(PathBuf, [u8; 32])>,
     imported: Imported,
 }
 
 /// Loaded imports and grids of earlier loads, plus what the latest load had to (re)load.
 #[derive(Default)]
 pub struct AssetCache {
+    files: Files,
     imports: HashMap<PathBuf, ImportEntry>,
     grids: HashMap<String, ([u8; 32], Arc<Grid>)>,
     used_imports: HashSet<PathBuf>,
@@ -51,6 +42,7 @@ impl AssetCache {
 
     /// Starts a scene load: forgets what the previous load reported.
     pub fn begin(&mut self) {
+        self.files.begin();
         self.used_imports.clear();
         self.used_grids.clear();
         self.loaded.clear();
@@ -62,6 +54,12 @@ impl AssetCache {
         let (ui, ug) = (&self.used_imports, &self.used_grids);
         self.imports.retain(|k, _| ui.contains(k));
         self.grids.retain(|k, _| ug.contains(k));
+        self.files.end(true);
+    }
+
+    /// Ends a load that failed: frees the bytes it read, keeps every cached asset.
+    pub fn abandon(&mut self) {
+        self.files.end(false);
     }
 
     /// Assets the latest load read from disk instead of reusing (one description each).
@@ -69,36 +67,75 @@ impl AssetCache {
         &self.loaded
     }
 
-    /// An import (OBJ, glTF, USD): reused when it and its sidecars hash as before.
+    /// Files the latest load read from disk, in order, by canonical path: each at most
+    /// once; a file reused unchanged (same length and modification time) not at all.
+    pub fn files_read(&self) -> Vec<PathBuf> {
+        self.files.files_read()
+    }
+
+    /// The reader of this load's files.
+    pub fn files(&self) -> &Files {
+        &self.files
+    }
+
+    /// An import (OBJ, glTF, USD): reused when it and its sidecars hash as before, else
+    /// built by `load`, which reads its files through the given [`Files`].
     pub fn import(
         &mut self,
         path: &Path,
-        load: impl FnOnce() -> Result<Imported>,
+        load: impl FnOnce(&Files) -> Result<Imported>,
     ) -> Result<Imported> {
         self.used_imports.insert(path.to_path_buf());
-        let main = hash_files(&[path.to_path_buf()])?;
+        let main = self.files.hash(path)?;
         if let Some(e) = self.imports.get(path) {
-            if e.main == main && hash_files(&e.sidecars).ok() == Some(e.side) {
+            let files = &self.files;
+            let same = |(p, h): &(PathBuf, [u8; 32])| files.hash(p).ok() == Some(*h);
+            if e.main == main && e.sidecars.iter().all(same) {
                 return Ok(e.imported.clone());
             }
         }
-        let imported = load()?;
-        let sidecars: Vec<PathBuf> = imported
-            .files
-            .iter()
-            .filter(|f| f.is_file())
-            .cloned()
-            .collect();
-        let side = hash_files(&sidecars)?;
+        let imported = load(&self.files)?;
+        // The bytes parsed (read in this load, so no file is read again here).
+        let main = self.files.hash(path)?;
+        let mut sidecars = Vec::new();
+        for f in imported.files.iter().filter(|f| f.is_file()) {
+            sidecars.push((f.clone(), self.files.hash(f)?));
+        }
         self.loaded.push(path.display().to_string());
         let entry = ImportEntry {
             main,
             sidecars,
-            side,
             imported: imported.clone(),
         };
         self.imports.insert(path.to_path_buf(), entry);
         Ok(imported)
+    }
+
+    /// Grid `name` of the grid file at `path`, parsed from the file's bytes by `parse`:
+    /// reused when the file hashes as before. Also returns the blake3 state after the
+    /// file's bytes, for keys over the bytes and more (the octree cache key).
+    pub fn grid_file(
+        &mut self,
+        path: &Path,
+        name: &str,
+        parse: impl FnOnce(Arc<Vec<u8>>) -> Result<Grid>,
+    ) -> Result<(Arc<Grid>, blake3::Hasher)> {
+        let key = format!("{} [{name}]", path.display());
+        self.used_grids.insert(key.clone());
+        let state = self.files.hasher(path)?;
+        if let Some((h, g)) = self.grids.get(&key) {
+            if h == state.finalize().as_bytes() {
+                return Ok((g.clone(), state));
+            }
+        }
+        let bytes = self.files.read(path)?;
+        // Of the bytes read: the same as `state` unless the file changed unseen.
+        let state = self.files.hasher(path)?;
+        let g = Arc::new(parse(bytes)?);
+        self.loaded.push(key.clone());
+        self.grids
+            .insert(key, (*state.finalize().as_bytes(), g.clone()));
+        Ok((g, state))
     }
 
     /// A grid identified by `key` (file and grid name, or procedural parameters) whose
@@ -182,6 +219,92 @@ mod tests {
         assert!(Arc::ptr_eq(
             &first.scene.grid_media[0].grid,
             &fixed.scene.grid_media[0].grid
+        ));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Backdates a file's modification time past the racy window of [`Files`] (each call
+    /// gives a new time, as a real edit would).
+    fn settle(p: &Path) {
+        let old = std::time::SystemTime::now() - std::time::Duration::from_secs(60);
+        let f = std::fs::File::options().write(true).open(p).unwrap();
+        f.set_modified(old).unwrap();
+    }
+
+    fn names(paths: &[PathBuf]) -> Vec<String> {
+        let mut v: Vec<String> = paths
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// `ppb watch` reloads: a file whose length and modification time are unchanged is
+    /// neither read nor hashed again; a changed one is read (once), and only re-parsed
+    /// when its bytes differ.
+    #[test]
+    fn reload_reads_only_files_whose_size_or_time_changed() {
+        let dir = std::env::temp_dir().join(format!("ppb-assets-memo-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let vdb =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance/smoke-grid/density.vdb");
+        std::fs::copy(&vdb, dir.join("density.vdb")).unwrap();
+        let obj = format!("mtllib floor.mtl\nusemtl grey\n{FLOOR}");
+        std::fs::write(dir.join("floor.obj"), &obj).unwrap();
+        std::fs::write(dir.join("floor.mtl"), "newmtl grey\nKd 0.5 0.5 0.5\n").unwrap();
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, scene(1.0)).unwrap();
+        for f in ["density.vdb", "floor.obj", "floor.mtl", "scene.toml"] {
+            settle(&dir.join(f));
+        }
+        let mut cache = AssetCache::new();
+        let first = load_cached(&path, &mut cache).unwrap();
+        assert_eq!(
+            names(&cache.files_read()),
+            ["density.vdb", "floor.mtl", "floor.obj", "scene.toml"]
+        );
+
+        // A light edit: only the scene file is read; the OBJ, its .mtl and the VDB are
+        // known unchanged by their length and time.
+        std::fs::write(&path, scene(2.0)).unwrap();
+        let second = load_cached(&path, &mut cache).unwrap();
+        assert_eq!(names(&cache.files_read()), ["scene.toml"]);
+        assert!(cache.loaded().is_empty(), "{:?}", cache.loaded());
+        assert!(Arc::ptr_eq(
+            &first.scene.grid_media[0].grid,
+            &second.scene.grid_media[0].grid
+        ));
+        assert_eq!(
+            first.scene.grid_media[0].source_hash,
+            second.scene.grid_media[0].source_hash
+        );
+
+        // An edited OBJ is read and parsed (its .mtl read with it for the parse).
+        std::fs::write(dir.join("floor.obj"), format!("{obj}# edited\n")).unwrap();
+        settle(&dir.join("floor.obj"));
+        load_cached(&path, &mut cache).unwrap();
+        assert_eq!(
+            names(&cache.files_read()),
+            ["floor.mtl", "floor.obj", "scene.toml"]
+        );
+        assert_eq!(
+            names(&cache.loaded().iter().map(PathBuf::from).collect::<Vec<_>>()),
+            ["floor.obj"]
+        );
+
+        // The VDB rewritten with the same bytes: its new time makes it read (once) and
+        // hashed, but the hash is the same, so the grid is not parsed again.
+        let bytes = std::fs::read(dir.join("density.vdb")).unwrap();
+        std::fs::write(dir.join("density.vdb"), &bytes).unwrap();
+        settle(&dir.join("density.vdb"));
+        let third = load_cached(&path, &mut cache).unwrap();
+        assert_eq!(names(&cache.files_read()), ["density.vdb", "scene.toml"]);
+        assert!(cache.loaded().is_empty(), "{:?}", cache.loaded());
+        assert!(Arc::ptr_eq(
+            &first.scene.grid_media[0].grid,
+            &third.scene.grid_media[0].grid
         ));
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -9,6 +9,7 @@ use ::gltf::mesh::Mode;
 use ::gltf::{buffer, Accessor, Document, Node, Primitive, Semantic};
 use glam::{Mat3, Mat4, Vec3};
 
+use super::files::Files;
 use super::{Camera, Imported, Light, Material, Mesh, NamedMaterial};
 use crate::error::{Error, Result};
 
@@ -30,7 +31,13 @@ const SUPPORTED_REQUIRED: &[&str] = &[
 /// Loads a .gltf or .glb file; lights are converted from photometric units (cd, lux) to
 /// W/sr and W/m^2 at 683 lm/W.
 pub fn load_gltf(path: &Path) -> Result<Imported> {
-    let (document, buffers) = open(path)?;
+    read_gltf(path, &Files::new())
+}
+
+/// [`load_gltf`] reading the file and its external buffers through `files` (once each
+/// per load).
+pub fn read_gltf(path: &Path, files: &Files) -> Result<Imported> {
+    let (document, buffers) = open(path, files)?;
     let scene = document
         .default_scene()
         .or_else(|| document.scenes().next())
@@ -71,12 +78,37 @@ fn external_files(path: &Path, document: &Document) -> Vec<std::path::PathBuf> {
         .collect()
 }
 
+/// A relative file URI as a path under `dir` (percent-escapes decoded, as the gltf
+/// crate's importer does); None for `data:` and other schemes.
+fn relative_file(dir: &Path, uri: &str) -> Option<std::path::PathBuf> {
+    if uri.contains(':') {
+        return None;
+    }
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let hex = |c: u8| (c as char).to_digit(16);
+        match (b[i], b.get(i + 1).copied(), b.get(i + 2).copied()) {
+            (b'%', Some(h), Some(l)) if hex(h).is_some() && hex(l).is_some() => {
+                out.push((hex(h)? * 16 + hex(l)?) as u8);
+                i += 3;
+            }
+            (c, _, _) => {
+                out.push(c);
+                i += 1;
+            }
+        }
+    }
+    Some(dir.join(String::from_utf8(out).ok()?))
+}
+
 /// Parses and validates the document and loads its buffers (never its images).
 ///
 /// `extensionsRequired` is checked here rather than by the gltf crate, which would reject
 /// KHR_mesh_quantization even though [`read_components`] decodes quantized attributes.
-fn open(path: &Path) -> Result<(Document, Vec<buffer::Data>)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+fn open(path: &Path, files: &Files) -> Result<(Document, Vec<buffer::Data>)> {
+    let bytes = files.read(path)?;
     let crate_err = |e: ::gltf::Error| Error::format(path, e.to_string());
     let ::gltf::Gltf { document, blob } =
         ::gltf::Gltf::from_slice_without_validation(&bytes).map_err(crate_err)?;
@@ -91,8 +123,49 @@ fn open(path: &Path) -> Result<(Document, Vec<buffer::Data>)> {
     }
     root.extensions_required.clear();
     let document = Document::from_json(root).map_err(crate_err)?;
-    let buffers = ::gltf::import_buffers(&document, path.parent(), blob).map_err(crate_err)?;
+    let buffers = import_buffers(path, &document, blob, files)?;
     Ok((document, buffers))
+}
+
+/// `gltf::import_buffers`, with buffers in files next to the glTF read through `files`.
+fn import_buffers(
+    path: &Path,
+    document: &Document,
+    mut blob: Option<Vec<u8>>,
+    files: &Files,
+) -> Result<Vec<buffer::Data>> {
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let crate_err = |e: ::gltf::Error| Error::format(path, e.to_string());
+    let mut out = Vec::new();
+    for b in document.buffers() {
+        let file = match b.source() {
+            buffer::Source::Uri(u) => relative_file(dir, u),
+            buffer::Source::Bin => None,
+        };
+        let data = match file {
+            Some(f) => {
+                let bytes = files.read(&f)?;
+                let mut v = Vec::with_capacity(bytes.len() + 3);
+                v.extend_from_slice(&bytes);
+                while v.len() % 4 != 0 {
+                    v.push(0);
+                }
+                buffer::Data(v)
+            }
+            None => buffer::Data::from_source_and_blob(b.source(), path.parent(), &mut blob)
+                .map_err(crate_err)?,
+        };
+        if data.len() < b.length() {
+            let e = ::gltf::Error::BufferLength {
+                buffer: b.index(),
+                expected: b.length(),
+                actual: data.len(),
+            };
+            return Err(crate_err(e));
+        }
+        out.push(data);
+    }
+    Ok(out)
 }
 
 /// Transmissive materials become smooth dielectrics, everything else Lambert with the base

@@ -2,10 +2,16 @@
 //!
 //! Units: metres, radiometric (W, W/sr, W/m^2, W/(m^2 sr)); right-handed, +Y up.
 pub mod assets;
+pub mod files;
+pub mod format;
 pub mod gltf;
+pub mod grids;
+pub mod medium;
 pub mod obj;
 pub mod toml;
 pub mod usd;
+
+pub use format::Format;
 
 use glam::Vec3;
 

@@ -1,10 +1,9 @@
 //! Wavefront OBJ import (with its .mtl): triangle meshes and materials, no lights or camera.
-use std::fs::File;
-use std::io::BufReader;
 use std::path::Path;
 
 use glam::Vec3;
 
+use super::files::Files;
 use super::{Imported, Material, Mesh, NamedMaterial};
 use crate::error::{Error, Result};
 
@@ -19,7 +18,12 @@ const DEFAULT_GREY: f32 = 0.8;
 /// Meshes without a triangle are skipped; a file with none at all is an error. A missing or
 /// unreadable .mtl is not an error: affected meshes use a grey Lambert material "default".
 pub fn load_obj(path: &Path) -> Result<Imported> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    read_obj(path, &Files::new())
+}
+
+/// [`load_obj`] reading the OBJ and its .mtl through `files` (once each per load).
+pub fn read_obj(path: &Path, files: &Files) -> Result<Imported> {
+    let bytes = files.read(path)?;
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
@@ -28,9 +32,13 @@ pub fn load_obj(path: &Path) -> Result<Imported> {
     };
     let dir = path.parent().unwrap_or(Path::new(""));
     let mtl_files = std::cell::RefCell::new(Vec::new());
-    let (models, mtl) = tobj::load_obj_buf(&mut BufReader::new(file), &options, |mtl_path| {
-        mtl_files.borrow_mut().push(dir.join(mtl_path));
-        tobj::load_mtl(dir.join(mtl_path))
+    let (models, mtl) = tobj::load_obj_buf(&mut &bytes[..], &options, |mtl_path| {
+        let p = dir.join(mtl_path);
+        mtl_files.borrow_mut().push(p.clone());
+        match files.read(&p) {
+            Ok(mtl) => tobj::load_mtl_buf(&mut &mtl[..]),
+            Err(_) => Err(tobj::LoadError::OpenFileFailed),
+        }
     })
     .map_err(|e| Error::format(path, e.to_string()))?;
 

@@ -5,10 +5,12 @@ use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 use super::assets::AssetCache;
-use super::{Camera, Imported, Light, Material, NamedMaterial, Scene};
+use super::grids::GridFile;
+use super::medium::{toml_field, MediumSpec, TransformSpec};
+use super::{Camera, Format, Imported, Light, Material, NamedMaterial, Scene};
 use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
-use crate::media::{GridMedium, MediumDesc, Phase};
+use crate::media::{GridMedium, MediumDesc};
 use crate::settings::{Radius, RenderSettings};
 use crate::transport::freepath::Mode;
 use crate::transport::transmittance::{TrMode, MAX_TR_BLOCK, MAX_TR_SAMPLES};
@@ -241,27 +243,27 @@ pub fn load(path: &Path) -> Result<SceneFile> {
 
 /// [`load`], reusing the imports and grids of earlier loads through `cache` when their
 /// files are unchanged (`ppb watch`); `cache.loaded()` then lists what was read anew.
+///
+/// Every file is read from disk at most once per load (`cache.files_read()` lists them).
 pub fn load_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
     cache.begin();
-    let file = if is_usd(path) {
-        load_usd_scene_cached(path, cache)?
-    } else {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        build(path, parse_file(path, &text)?, cache)?
-    };
-    cache.prune();
-    Ok(file)
-}
-
-fn extension_of(p: &Path) -> String {
-    p.extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default()
+    let file = (|| match Format::of_scene(path)? {
+        Format::Usd => load_usd_scene_cached(path, cache),
+        _ => {
+            let text = cache.files().read_string(path)?;
+            build(path, parse_file(path, &text)?, cache)
+        }
+    })();
+    match file {
+        Ok(_) => cache.prune(),
+        Err(_) => cache.abandon(),
+    }
+    file
 }
 
 /// Whether the path names a USD stage by its extension.
 pub fn is_usd(p: &Path) -> bool {
-    matches!(extension_of(p).as_str(), "usd" | "usda" | "usdc" | "usdz")
+    Format::detect(p) == Some(Format::Usd)
 }
 
 /// `ppb render shot.usda`: the stage becomes the one `[[import]]` of a scene with
@@ -277,7 +279,7 @@ fn load_usd_scene_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFil
     let stem = path.file_stem().unwrap_or_default().to_string_lossy();
     let sidecar = path.with_file_name(format!("{stem}.ppb.toml"));
     let mut file = if sidecar.is_file() {
-        let text = std::fs::read_to_string(&sidecar).map_err(|e| Error::io(&sidecar, e))?;
+        let text = cache.files().read_string(&sidecar)?;
         parse_file(&sidecar, &text)?
     } else {
         FileScene::default()
@@ -527,24 +529,12 @@ fn load_asset(
     scene_path: &Path,
     cache: &mut AssetCache,
 ) -> Result<Imported> {
-    let ext = p
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    let imported = match ext.as_str() {
-        "obj" => cache.import(p, || super::obj::load_obj(p))?,
-        "gltf" | "glb" => cache.import(p, || super::gltf::load_gltf(p))?,
-        "usd" | "usda" | "usdc" | "usdz" => cache.import(p, || super::usd::load_usd(p))?,
-        _ => {
-            return Err(Error::field(
-                scene_path,
-                field,
-                format!(
-                    "{}: expected a .obj, .gltf, .glb, .usd, .usda, .usdc or .usdz file",
-                    p.display()
-                ),
-            ))
-        }
+    let format = Format::of_kind(p, &Format::IMPORTS)
+        .map_err(|e| Error::field(scene_path, field, e.to_string()))?;
+    let imported = match format {
+        Format::Obj => cache.import(p, |files| super::obj::read_obj(p, files))?,
+        Format::Gltf => cache.import(p, |files| super::gltf::read_gltf(p, files))?,
+        _ => cache.import(p, |files| super::usd::read_usd(p, files))?,
     };
     if imported.meshes.iter().all(|m| m.triangles.is_empty())
         && imported.lights.is_empty()
@@ -641,6 +631,10 @@ fn medium(
     cache: &mut AssetCache,
 ) -> Result<Medium> {
     let f = |k: &str| format!("medium[{i}].{k}");
+    let g = |phase: &Option<FilePhase>| match phase {
+        None | Some(FilePhase::Isotropic) => None,
+        Some(FilePhase::Hg { g }) => Some(*g),
+    };
     match m {
         FileMedium::Grid {
             path,
@@ -650,30 +644,32 @@ fn medium(
             phase,
             transform,
         } => {
+            let mp = MediumSpec {
+                density_scale: Some(*density_scale),
+                albedo: Some(*albedo),
+                g: g(phase),
+                transform: transform.as_ref().map(|t| TransformSpec::Srt {
+                    translate: t.translate,
+                    rotate_deg: t.rotate_deg,
+                    scale: t.scale,
+                }),
+                ..Default::default()
+            }
+            .check(ck.path, toml_field(i))?;
             let p = dir.join(path);
             let name = grid.as_deref().unwrap_or("density");
-            let bytes = std::fs::read(&p).map_err(|e| Error::io(&p, e))?;
-            let key = format!("{} [{name}]", p.display());
-            let file_hash = *blake3::hash(&bytes).as_bytes();
-            let loaded =
-                cache.grid(&key, file_hash, || load_grid_file(ck, &f("path"), &p, name))?;
-            let scale = ck.in_range(
-                &f("density_scale"),
-                *density_scale,
-                0.0,
-                f32::MAX,
-                "a finite number >= 0",
-            )?;
-            let xf = grid_transform(ck, &f("transform"), transform.as_ref())?;
-            let mut h = blake3::Hasher::new();
-            h.update(&bytes);
+            Format::of_kind(&p, &Format::GRIDS).map_err(|e| ck.err(&f("path"), e.to_string()))?;
+            let (loaded, mut h) = cache.grid_file(&p, name, |bytes| {
+                GridFile::from_bytes(&p, bytes)?.load(name)
+            })?;
+            let (scale, xf) = (mp.density_scale, mp.transform);
             h.update(format!("{name} {scale} {xf:?}").as_bytes());
             Ok(Medium::Grid(GridMedium::new(
                 loaded,
                 xf,
                 scale,
-                check_albedo(ck, &f("albedo"), albedo)?,
-                check_phase(ck, &f("phase.g"), phase)?,
+                mp.albedo,
+                mp.phase,
                 format!("{} [{name}]", p.display()),
                 *h.finalize().as_bytes(),
             )))
@@ -683,18 +679,21 @@ fn medium(
             sigma_t,
             albedo,
             phase,
-        } => Ok(Medium::Homogeneous(MediumDesc {
-            bounds: check_bounds(ck, &f("bounds"), bounds)?,
-            sigma_t: ck.in_range(
-                &f("sigma_t"),
-                *sigma_t,
-                0.0,
-                f32::MAX,
-                "a finite number >= 0 (1/m)",
-            )?,
-            albedo: check_albedo(ck, &f("albedo"), albedo)?,
-            phase: check_phase(ck, &f("phase.g"), phase)?,
-        })),
+        } => {
+            let mp = MediumSpec {
+                sigma_t: Some(*sigma_t),
+                albedo: Some(*albedo),
+                g: g(phase),
+                ..Default::default()
+            }
+            .check(ck.path, toml_field(i))?;
+            Ok(Medium::Homogeneous(MediumDesc {
+                bounds: check_bounds(ck, &f("bounds"), bounds)?,
+                sigma_t: mp.sigma_t,
+                albedo: mp.albedo,
+                phase: mp.phase,
+            }))
+        }
         FileMedium::Noise {
             preset,
             bounds,
@@ -740,13 +739,14 @@ fn medium(
                     format!("expected 2..=1024 voxels, got {}", params.resolution),
                 ));
             }
-            let scale = ck.in_range(
-                &f("density_scale"),
-                *density_scale,
-                0.0,
-                f32::MAX,
-                "a finite number >= 0",
-            )?;
+            let mp = MediumSpec {
+                density_scale: Some(*density_scale),
+                albedo: Some(*albedo),
+                g: g(phase),
+                ..Default::default()
+            }
+            .check(ck.path, toml_field(i))?;
+            let scale = mp.density_scale;
             let hash = blake3::hash(format!("noise {params:?} {scale}").as_bytes());
             let key = format!("noise {params:?}");
             let field_hash = *blake3::hash(key.as_bytes()).as_bytes();
@@ -755,62 +755,13 @@ fn medium(
                 grid,
                 DAffine3::IDENTITY,
                 scale,
-                check_albedo(ck, &f("albedo"), albedo)?,
-                check_phase(ck, &f("phase.g"), phase)?,
+                mp.albedo,
+                mp.phase,
                 format!("noise {:?} seed {}", params.preset, params.seed),
                 *hash.as_bytes(),
             )))
         }
     }
-}
-
-/// Loads grid `name` from a .vdb or .nvdb file.
-fn load_grid_file(
-    ck: &Check,
-    field: &str,
-    p: &Path,
-    name: &str,
-) -> Result<crate::media::grid::Grid> {
-    let ext = p
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "vdb" => crate::media::openvdb::load_grid(p, name),
-        "nvdb" => crate::media::nanovdb::load_grid(p, name),
-        _ => Err(ck.err(
-            field,
-            format!("{}: expected a .vdb or .nvdb file", p.display()),
-        )),
-    }
-}
-
-/// translate * rotate (X, then Y, then Z, degrees) * uniform scale, applied after the
-/// file's own index-to-world map.
-fn grid_transform(ck: &Check, field: &str, t: Option<&FileTransform>) -> Result<DAffine3> {
-    let Some(t) = t else {
-        return Ok(DAffine3::IDENTITY);
-    };
-    let tr = t.translate.unwrap_or([0.0; 3]);
-    let rot = t.rotate_deg.unwrap_or([0.0; 3]);
-    let scale = t.scale.unwrap_or(1.0);
-    if !(tr.iter().chain(rot.iter()).all(|v| v.is_finite()) && scale.is_finite() && scale > 0.0) {
-        return Err(ck.err(
-            field,
-            "expected finite translate/rotate_deg and a scale > 0".into(),
-        ));
-    }
-    let q = glam::DQuat::from_euler(
-        glam::EulerRot::ZYX,
-        rot[2].to_radians(),
-        rot[1].to_radians(),
-        rot[0].to_radians(),
-    );
-    Ok(DAffine3::from_scale_rotation_translation(
-        glam::DVec3::splat(scale),
-        q,
-        glam::DVec3::from(tr),
-    ))
 }
 
 fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3; 2]> {
@@ -823,23 +774,6 @@ fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3
         ));
     }
     Ok([lo, hi])
-}
-
-fn check_albedo(ck: &Check, field: &str, albedo: &[f32; 3]) -> Result<Vec3> {
-    let a = ck.nonneg3(field, *albedo)?;
-    if a.max_element() > 1.0 {
-        return Err(ck.err(field, format!("expected values in [0, 1], got {albedo:?}")));
-    }
-    Ok(a)
-}
-
-fn check_phase(ck: &Check, field: &str, phase: &Option<FilePhase>) -> Result<Phase> {
-    Ok(match phase {
-        None | Some(FilePhase::Isotropic) => Phase::ISOTROPIC,
-        Some(FilePhase::Hg { g }) => Phase {
-            g: ck.in_range(field, *g, -0.999, 0.999, "g in (-1, 1)")?,
-        },
-    })
 }
 
 fn camera_from(ck: &Check, c: &FileCamera) -> Result<Camera> {

@@ -25,15 +25,18 @@
 //! textures feeding UsdPreviewSurface inputs (their fallbacks apply), and volume
 //! materials.
 use glam::{DAffine3, DMat3, DMat4, DQuat, DVec3, Vec3};
-use openusd::{gf, sdf, usd};
+use openusd::{ar, gf, sdf, usd};
 use std::collections::HashMap;
 use std::f64::consts::PI;
+use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use super::files::Files;
+use super::medium::{usd_field, MediumSpec, TransformSpec};
 use super::{Camera, Imported, Light, Material, Mesh, NamedMaterial};
 use crate::error::{Error, Result};
-use crate::media::{GridMedium, Phase};
+use crate::media::GridMedium;
 
 /// UsdPreviewSurface's fallback diffuseColor.
 const DEFAULT_DIFFUSE: f64 = 0.18;
@@ -48,11 +51,17 @@ const SPHERE_SEGMENTS: u32 = 48;
 /// gap: a .usdc whose corrupted counts ask the crate for a huge allocation aborts the
 /// process (allocation failure is not a panic), which no wrapper here can catch.
 pub fn load_usd(path: &Path) -> Result<Imported> {
+    read_usd(path, &Files::new())
+}
+
+/// [`load_usd`] reading the stage's layers and its volumes' VDBs through `files`: each
+/// is read from disk once per load, however often the USD reader opens it.
+pub fn read_usd(path: &Path, files: &Files) -> Result<Imported> {
     std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     let path_str = path
         .to_str()
         .ok_or_else(|| Error::format(path, "the path is not valid UTF-8"))?;
-    let run = std::panic::AssertUnwindSafe(|| import(path, path_str));
+    let run = std::panic::AssertUnwindSafe(|| import(path, path_str, files));
     match std::panic::catch_unwind(run) {
         Ok(r) => r,
         Err(p) => {
@@ -66,8 +75,14 @@ pub fn load_usd(path: &Path) -> Result<Imported> {
     }
 }
 
-fn import(path: &Path, path_str: &str) -> Result<Imported> {
-    let stage = usd::Stage::open(path_str)
+fn import(path: &Path, path_str: &str, files: &Files) -> Result<Imported> {
+    let resolver = ReadOnce {
+        inner: ar::DefaultResolver::new(),
+        files: files.clone(),
+    };
+    let stage = usd::Stage::builder()
+        .resolver(resolver)
+        .open(path_str)
         .map_err(|e| Error::format(path, format!("cannot open USD stage: {e:#}")))?;
     // Instance proxies are walked too, so instanced geometry is not silently lost.
     let mut prims = Vec::new();
@@ -78,6 +93,7 @@ fn import(path: &Path, path_str: &str) -> Result<Imported> {
         .map_err(|e| Error::format(path, format!("cannot traverse the stage: {e:#}")))?;
     let mut ctx = Ctx {
         stage: &stage,
+        files,
         path,
         dir: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
         root: DMat4::IDENTITY,
@@ -103,6 +119,7 @@ fn import(path: &Path, path_str: &str) -> Result<Imported> {
 /// Import state: the stage, the stage-to-ppb root correction, caches and the output.
 struct Ctx<'a> {
     stage: &'a usd::Stage,
+    files: &'a Files,
     path: &'a Path,
     dir: PathBuf,
     /// metersPerUnit scale and up-axis rotation, applied after every world transform.
@@ -206,6 +223,22 @@ impl<'a> Ctx<'a> {
             }
         }
         Ok(None)
+    }
+
+    /// The value of `prim.name` as a number, unchecked (None when unauthored).
+    fn f64_opt(&self, p: &sdf::Path, name: &str) -> Result<Option<f64>> {
+        self.value(p, name)?
+            .map(|v| v.cast::<f64>())
+            .transpose()
+            .map_err(|e| self.err(p, format!("{name}: {e}")))
+    }
+
+    /// The value of `prim.name` as a triple, unchecked (None when unauthored).
+    fn vec3_opt(&self, p: &sdf::Path, name: &str) -> Result<Option<[f64; 3]>> {
+        self.value(p, name)?
+            .map(|v| v.cast::<[f64; 3]>())
+            .transpose()
+            .map_err(|e| self.err(p, format!("{name}: {e}")))
     }
 
     fn f64_or(&self, p: &sdf::Path, names: &[&str], default: f64) -> Result<f64> {
@@ -713,10 +746,12 @@ impl<'a> Ctx<'a> {
     /// folder and `fieldName` (fallback: the field's relationship name) picks the grid.
     /// The grid's own index-to-world map is followed by the Volume prim's world
     /// transform. Medium parameters come from custom attributes on the Volume prim,
-    /// `ppb:densityScale` (1), `ppb:albedo` (0.9 grey) and `ppb:g` (0); a volume
-    /// material is not read; extra media can come from a `<stem>.ppb.toml` sidecar. Grid
-    /// values times `ppb:densityScale` are extinction in 1/m whatever metersPerUnit is.
-    /// A missing or unreadable .vdb is an error naming the prim.
+    /// `ppb:densityScale` (1), `ppb:albedo` (0.9 grey) and `ppb:g` (0), checked by
+    /// [`MediumSpec::check`] as a TOML medium's are; a volume material is not read;
+    /// extra media can come from a `<stem>.ppb.toml` sidecar. Grid values times
+    /// `ppb:densityScale` are extinction in 1/m whatever metersPerUnit is. A missing or
+    /// unreadable .vdb is an error naming the prim. The VDB is read once (through
+    /// [`Files`]) for both the grid and the octree cache key.
     fn volume(&mut self, p: &sdf::Path) -> Result<()> {
         let Some((rel, field)) = self.volume_field(p)? else {
             self.note(format!("ignored Volume {p}: no field:* relationship"));
@@ -732,30 +767,28 @@ impl<'a> Ctx<'a> {
         let file = self.asset_path(&field, "filePath")?;
         let name = self.token(&field, "fieldName")?.filter(|s| !s.is_empty());
         let name = name.unwrap_or(rel);
-        let grid = crate::media::openvdb::load_grid(&file, &name)
-            .map_err(|e| self.err(&field, format!("cannot load the VDB: {e}")))?;
-        let xf = DAffine3::from_mat4(self.world(p)?);
-        let scale = self.f64_or(p, &["ppb:densityScale"], 1.0)?;
-        let albedo = self.vec3_or(p, &["ppb:albedo"], DVec3::splat(0.9))?;
-        let g = self.f64_or(p, &["ppb:g"], 0.0)?;
-        if scale < 0.0 || albedo.min_element() < 0.0 || albedo.max_element() > 1.0 {
-            return Err(self.err(p, "ppb:densityScale must be >= 0, ppb:albedo in [0, 1]"));
-        }
-        if g.abs() >= 0.999 {
-            return Err(self.err(p, "ppb:g must be in (-1, 1)"));
-        }
-        let bytes = std::fs::read(&file).map_err(|e| Error::io(&file, e))?;
+        // An OpenVDBAsset is OpenVDB by its schema, whatever the file's extension.
+        let cannot = |e: Error| self.err(&field, format!("cannot load the VDB: {e}"));
+        let bytes = self.files.read(&file).map_err(cannot)?;
+        let grid = crate::media::openvdb::load_grid_from(&file, &bytes, &name).map_err(cannot)?;
+        let mut h = self.files.hasher(&file)?;
+        let spec = MediumSpec {
+            density_scale: self.f64_opt(p, "ppb:densityScale")?.map(|x| x as f32),
+            albedo: self.vec3_opt(p, "ppb:albedo")?.map(|a| a.map(|x| x as f32)),
+            g: self.f64_opt(p, "ppb:g")?.map(|x| x as f32),
+            transform: Some(TransformSpec::Matrix(DAffine3::from_mat4(self.world(p)?))),
+            ..Default::default()
+        };
+        let mp = spec.check(self.path, usd_field(p))?;
+        let (scale, xf) = (mp.density_scale, mp.transform);
         self.out.files.push(file.clone());
-        let scale = scale as f32;
-        let mut h = blake3::Hasher::new();
-        h.update(&bytes);
         h.update(format!("{name} {scale} {xf:?}").as_bytes());
         self.out.grid_media.push(GridMedium::new(
             Arc::new(grid),
             xf,
             scale,
-            albedo.as_vec3(),
-            Phase { g: g as f32 },
+            mp.albedo,
+            mp.phase,
             format!("{} [{name}] ({p})", file.display()),
             *h.finalize().as_bytes(),
         ));
@@ -937,4 +970,111 @@ fn uv_sphere(r: f64, seg: u32) -> (Vec<DVec3>, Vec<DVec3>, Vec<[u32; 3]>) {
     }
     let normals = pts.clone();
     (pts.iter().map(|&q| q * r).collect(), normals, tris)
+}
+
+/// The stage's assets read through [`Files`]: a layer the USD reader opens more than
+/// once (a `.usd` is peeked for its format, then read) and a .usdz package opened per
+/// packaged layer are read from disk once; resolution is the default resolver's.
+struct ReadOnce {
+    inner: ar::DefaultResolver,
+    files: Files,
+}
+
+/// A file's bytes shared with [`Files`], as a seekable asset.
+struct Shared(io::Cursor<SharedBytes>);
+struct SharedBytes(Arc<Vec<u8>>);
+
+impl AsRef<[u8]> for SharedBytes {
+    fn as_ref(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+impl io::Read for Shared {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        self.0.read(buf)
+    }
+}
+
+impl io::Seek for Shared {
+    fn seek(&mut self, pos: io::SeekFrom) -> io::Result<u64> {
+        self.0.seek(pos)
+    }
+}
+
+impl ar::Asset for Shared {
+    fn size(&self) -> io::Result<u64> {
+        Ok(self.0.get_ref().0.len() as u64)
+    }
+}
+
+impl ReadOnce {
+    fn bytes(&self, path: &Path) -> io::Result<Arc<Vec<u8>>> {
+        self.files.read(path).map_err(|e| match e {
+            Error::Io { cause, .. } => cause,
+            other => io::Error::other(other.to_string()),
+        })
+    }
+
+    /// The .usdz package at `path` as a zip archive over its bytes.
+    fn package(&self, path: &Path) -> io::Result<zip::ZipArchive<io::Cursor<SharedBytes>>> {
+        let bytes = self.bytes(path)?;
+        zip::ZipArchive::new(io::Cursor::new(SharedBytes(bytes))).map_err(io::Error::other)
+    }
+
+    /// (package, entry) of `pkg.usdz[entry]`; None for a plain or nested path.
+    fn packaged(path: &str) -> Option<(String, String)> {
+        if !ar::is_package_relative_path(path) {
+            return None;
+        }
+        let (package, entry) = ar::split_package_relative_path_outer(path)?;
+        (!ar::is_package_relative_path(&entry)).then_some((package, entry))
+    }
+}
+
+impl ar::Resolver for ReadOnce {
+    fn create_identifier(&self, asset_path: &str, anchor: Option<&ar::ResolvedPath>) -> String {
+        self.inner.create_identifier(asset_path, anchor)
+    }
+
+    /// As the default resolver: a packaged path resolves when its package does and,
+    /// if the package is a readable zip, holds the entry.
+    fn resolve(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
+        let Some((package, entry)) = Self::packaged(asset_path) else {
+            return self.inner.resolve(asset_path);
+        };
+        let package = self.inner.resolve(&package)?;
+        let missing = self
+            .package(&package)
+            .is_ok_and(|zip| zip.index_for_name(&entry).is_none());
+        if missing {
+            return None;
+        }
+        let joined = ar::join_package_relative_path(&package.to_string_lossy(), &entry);
+        Some(ar::ResolvedPath::new(joined))
+    }
+
+    fn resolve_for_new_asset(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
+        self.inner.resolve_for_new_asset(asset_path)
+    }
+
+    fn open_asset(&self, resolved: &ar::ResolvedPath) -> io::Result<Box<dyn ar::Asset>> {
+        let s = resolved.to_string_lossy();
+        if let Some((package, entry)) = Self::packaged(&s) {
+            let mut zip = self.package(Path::new(&package))?;
+            let mut file = zip.by_name(&entry).map_err(io::Error::other)?;
+            let mut buf = Vec::new();
+            io::Read::read_to_end(&mut file, &mut buf)?;
+            return Ok(Box::new(io::Cursor::new(buf)));
+        }
+        if ar::is_package_relative_path(&s) {
+            return self.inner.open_asset(resolved);
+        }
+        let bytes = self.bytes(resolved)?;
+        Ok(Box::new(Shared(io::Cursor::new(SharedBytes(bytes)))))
+    }
+
+    fn identity(&self) -> String {
+        self.inner.identity()
+    }
 }

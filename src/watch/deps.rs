@@ -12,7 +12,7 @@ pub fn files(file: &SceneFile) -> Vec<PathBuf> {
     let mut seen = BTreeSet::new();
     let mut out = Vec::new();
     let mut all = vec![file.path.clone()];
-    if crate::scene::toml::is_usd(&file.path) {
+    if crate::scene::Format::detect(&file.path) == Some(crate::scene::Format::Usd) {
         all.push(usd_sidecar(&file.path));
     }
     all.extend(file.sources.iter().cloned());

@@ -158,14 +158,24 @@ pub struct GridInfo {
 /// Every grid in the file, in file order.
 pub fn list_grids(path: &Path) -> Result<Vec<GridInfo>> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let entries = file::entries(bytes::Bytes(&data)).map_err(|m| Error::format(path, m))?;
+    list_grids_from(path, &data)
+}
+
+/// [`list_grids`] of a file already read: `data` is its bytes, `path` names it in errors.
+pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridInfo>> {
+    let entries = file::entries(bytes::Bytes(data)).map_err(|m| Error::format(path, m))?;
     Ok(entries.into_iter().map(|e| e.info).collect())
 }
 
 /// Loads the first float grid called `name`.
 pub fn load_grid(path: &Path, name: &str) -> Result<Grid> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let entries = file::entries(bytes::Bytes(&data)).map_err(|m| Error::format(path, m))?;
+    load_grid_from(path, &data, name)
+}
+
+/// [`load_grid`] from a file already read: `data` is its bytes, `path` names it in errors.
+pub fn load_grid_from(path: &Path, data: &[u8], name: &str) -> Result<Grid> {
+    let entries = file::entries(bytes::Bytes(data)).map_err(|m| Error::format(path, m))?;
     let Some(entry) = entries.iter().find(|e| e.info.name == name) else {
         let names: Vec<&str> = entries.iter().map(|e| e.info.name.as_str()).collect();
         let msg = format!("no grid \"{name}\" (grids in file: {})", names.join(", "));
@@ -180,7 +190,7 @@ pub fn load_grid(path: &Path, name: &str) -> Result<Grid> {
         return Err(Error::field(path, "grid", msg));
     }
     let in_grid = |m: String| Error::format(path, format!("grid \"{name}\": {m}"));
-    let stored = bytes::Bytes(&data)
+    let stored = bytes::Bytes(data)
         .slice(entry.offset, info.file_bytes)
         .map_err(in_grid)?;
     let buffer = codec::decode(stored, info.codec, info.grid_bytes).map_err(in_grid)?;

@@ -60,12 +60,17 @@ struct Descriptor {
 /// Lists the grids of a `.vdb` file in file order.
 pub fn list_grids(path: &Path) -> Result<Vec<GridInfo>> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let descs = read_descriptors(&data).map_err(|m| Error::format(path, m))?;
+    list_grids_from(path, &data)
+}
+
+/// [`list_grids`] of a file already read: `data` is its bytes, `path` names it in errors.
+pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridInfo>> {
+    let descs = read_descriptors(data).map_err(|m| Error::format(path, m))?;
     descs
         .iter()
         .enumerate()
         .map(|(index, d)| {
-            let mut r = Reader::new(&data);
+            let mut r = Reader::new(data);
             let (_, class) = read_grid_start(&mut r, d)
                 .map_err(|m| Error::format(path, format!("grid \"{}\": {m}", d.name)))?;
             Ok(GridInfo {
@@ -82,7 +87,12 @@ pub fn list_grids(path: &Path) -> Result<Vec<GridInfo>> {
 /// Loads the scalar float grid called `name` (exact unique name first, then plain name).
 pub fn load_grid(path: &Path, name: &str) -> Result<Grid> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let descs = read_descriptors(&data).map_err(|m| Error::format(path, m))?;
+    load_grid_from(path, &data, name)
+}
+
+/// [`load_grid`] from a file already read: `data` is its bytes, `path` names it in errors.
+pub fn load_grid_from(path: &Path, data: &[u8], name: &str) -> Result<Grid> {
+    let descs = read_descriptors(data).map_err(|m| Error::format(path, m))?;
     let desc = find(&descs, name).ok_or_else(|| no_grid(path, name, &descs))?;
     if desc.tree_type != FLOAT_TREE {
         return Err(Error::field(
@@ -94,7 +104,7 @@ pub fn load_grid(path: &Path, name: &str) -> Result<Grid> {
             ),
         ));
     }
-    read_grid(&data, &descs, desc)
+    read_grid(data, &descs, desc)
         .map_err(|m| Error::format(path, format!("grid \"{}\": {m}", desc.name)))
 }
 
