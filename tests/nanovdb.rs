@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use glam::{DAffine3, DMat3, DVec3, IVec3};
 use ppb::error::Error;
 use ppb::media::grid::Grid;
-use ppb::media::nanovdb::{list_grids, load_grid, Codec, GridInfo, GridType};
+use ppb::media::nanovdb::{list_grids, load_grid, Codec, GridMetaData, GridType};
 use serde_json::Value;
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/nvdb/");
@@ -159,7 +159,7 @@ fn codec_name(c: Codec) -> &'static str {
     }
 }
 
-fn check_info(file: &str, got: &GridInfo, want: &Value) {
+fn check_info(file: &str, got: &GridMetaData, want: &Value) {
     let ctx = format!("{file} {}", got.name);
     let v = &want["version"];
     let version = [got.version.major, got.version.minor, got.version.patch];

@@ -3,7 +3,7 @@
 use glam::{DVec3, IVec3};
 use ppb::error::Error;
 use ppb::media::grid::Grid;
-use ppb::media::openvdb::{list_grids, load_grid, GridInfo};
+use ppb::media::openvdb::{list_grids, load_grid, GridDescriptor};
 use serde_json::Value;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -177,7 +177,7 @@ fn lists_grids_in_file_order() {
                 .iter()
                 .find(|s| s["name"] == w["unique_name"])
                 .unwrap();
-            let expected = GridInfo {
+            let expected = GridDescriptor {
                 name: w["unique_name"].as_str().unwrap().into(),
                 value_type: written.trim_end_matches("_HalfFloat").into(),
                 class: grid["grid_class"].as_str().unwrap().into(),
@@ -215,7 +215,7 @@ fn lists_grids_in_file_order() {
     }
     for scene in ["smoke-grid", "cloud-hg"] {
         let got = list_grids(&data(&format!("conformance/{scene}/density.vdb"))).unwrap();
-        let want = GridInfo {
+        let want = GridDescriptor {
             name: "density".into(),
             value_type: "Tree_float_5_4_3".into(),
             class: "fog volume".into(),

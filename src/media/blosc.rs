@@ -8,8 +8,7 @@
 //! With the shuffle flag the decoded block is byte-transposed by `typesize`.
 use std::io::Read;
 
-/// Decoder result: an error message without the file name (the caller adds it).
-pub type Parse<T> = std::result::Result<T, String>;
+pub use crate::media::Parse;
 
 const HEADER: usize = 16;
 const FLAG_SHUFFLE: u8 = 0x01;

@@ -10,5 +10,9 @@ pub mod phase;
 pub mod procedural;
 
 pub use heterogeneous::{GridMedium, Heterogeneous};
+
+/// What the file readers' byte parsers return: the value or what was wrong, to be wrapped
+/// with the file's name.
+pub type Parse<T> = std::result::Result<T, String>;
 pub use homogeneous::{Media, MediumDesc};
 pub use phase::Phase;

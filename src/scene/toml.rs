@@ -261,11 +261,6 @@ pub fn load_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
     file
 }
 
-/// Whether the path names a USD stage by its extension.
-pub fn is_usd(p: &Path) -> bool {
-    Format::detect(p) == Some(Format::Usd)
-}
-
 /// `ppb render shot.usda`: the stage becomes the one `[[import]]` of a scene with
 /// default render settings and the stage's camera, unless a sidecar `shot.ppb.toml`
 /// sits next to it; then the sidecar is read as a normal scene file (settings, extra

@@ -2,8 +2,7 @@
 //! itself, so each read is checked against the buffer instead of trusted.
 use glam::{DVec3, IVec3};
 
-/// Internal parse result: the message becomes an `Error::format` at the public API.
-pub(super) type Parse<T> = std::result::Result<T, String>;
+pub(super) use crate::media::Parse;
 
 #[derive(Clone, Copy)]
 pub(super) struct Bytes<'a>(pub &'a [u8]);

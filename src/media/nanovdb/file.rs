@@ -1,7 +1,7 @@
 //! The file container: segments (header, per-grid metadata and names, then the stored grid
 //! buffers), or from NanoVDB 32.6 on also a bare sequence of grid buffers.
 use super::bytes::{Bytes, Parse};
-use super::{tree, Codec, GridClass, GridInfo, GridType, Version};
+use super::{tree, Codec, GridClass, GridMetaData, GridType, Version};
 
 pub(super) const MAGIC_NUMB: u64 = u64::from_le_bytes(*b"NanoVDB0");
 pub(super) const MAGIC_GRID: u64 = u64::from_le_bytes(*b"NanoVDB1");
@@ -17,7 +17,7 @@ const RATIO_SLACK: u64 = 4096;
 
 /// One grid: what the file says about it and where its stored bytes start.
 pub(super) struct Entry {
-    pub info: GridInfo,
+    pub info: GridMetaData,
     pub offset: u64,
 }
 
@@ -95,14 +95,14 @@ fn codec(code: u16) -> Parse<Codec> {
 }
 
 /// One 176-byte FileMetaData record and the name after it; returns the end of the name.
-fn meta(b: Bytes, p: u64, version: Version, codec: Codec) -> Parse<(GridInfo, u64)> {
+fn meta(b: Bytes, p: u64, version: Version, codec: Codec) -> Parse<(GridMetaData, u64)> {
     b.slice(p, META_BYTES)?;
     let name_size = b.u32(p + 136)? as u64;
     if name_size == 0 {
         return Err("empty grid name field".into());
     }
     let name = b.c_str(p + META_BYTES, name_size)?;
-    let info = GridInfo {
+    let info = GridMetaData {
         name,
         grid_type: GridType(b.u32(p + 32)?),
         grid_class: GridClass(b.u32(p + 36)?),
@@ -122,7 +122,7 @@ fn meta(b: Bytes, p: u64, version: Version, codec: Codec) -> Parse<(GridInfo, u6
 }
 
 /// Rejects a decoded size that the stored bytes cannot produce, before anything is allocated.
-fn check_sizes(info: &GridInfo) -> Parse<()> {
+fn check_sizes(info: &GridMetaData) -> Parse<()> {
     let (grid, stored) = (info.grid_bytes, info.file_bytes);
     if grid < tree::MIN_GRID_BYTES {
         return Err(format!("grid size {grid} is smaller than a grid header"));

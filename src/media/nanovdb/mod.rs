@@ -133,7 +133,7 @@ impl fmt::Display for Version {
 
 /// What a file says about one grid, without decoding it.
 #[derive(Clone, Debug, PartialEq)]
-pub struct GridInfo {
+pub struct GridMetaData {
     pub name: String,
     pub grid_type: GridType,
     pub grid_class: GridClass,
@@ -156,13 +156,13 @@ pub struct GridInfo {
 }
 
 /// Every grid in the file, in file order.
-pub fn list_grids(path: &Path) -> Result<Vec<GridInfo>> {
+pub fn list_grids(path: &Path) -> Result<Vec<GridMetaData>> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     list_grids_from(path, &data)
 }
 
 /// [`list_grids`] of a file already read: `data` is its bytes, `path` names it in errors.
-pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridInfo>> {
+pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridMetaData>> {
     let entries = file::entries(bytes::Bytes(data)).map_err(|m| Error::format(path, m))?;
     Ok(entries.into_iter().map(|e| e.info).collect())
 }

@@ -9,7 +9,7 @@ use glam::{DAffine3, DMat3, IVec3};
 
 use super::bytes::{offset, Bytes, Parse};
 use super::file::{self, MAGIC_GRID, MAGIC_NUMB};
-use super::{Codec, GridClass, GridInfo, GridType};
+use super::{Codec, GridClass, GridMetaData, GridType};
 use crate::media::grid::{Grid, GridBuilder, Leaf, Tile};
 
 const GRID_DATA: u64 = 672;
@@ -99,11 +99,11 @@ impl TreeData {
 }
 
 /// What a bare grid buffer says about itself (files without segment metadata).
-pub(super) fn info(buf: &[u8]) -> Parse<GridInfo> {
+pub(super) fn info(buf: &[u8]) -> Parse<GridMetaData> {
     let b = Bytes(buf);
     let tree = TreeData::read(b)?;
     let root = tree.root(b)?;
-    Ok(GridInfo {
+    Ok(GridMetaData {
         name: b.c_str(GRID_NAME, GRID_NAME_BYTES)?,
         grid_type: GridType(b.u32(GRID_TYPE)?),
         grid_class: GridClass(b.u32(GRID_CLASS)?),
@@ -121,7 +121,7 @@ pub(super) fn info(buf: &[u8]) -> Parse<GridInfo> {
 }
 
 /// Builds the [`Grid`] of a float grid buffer described by `info`.
-pub(super) fn load_float(buf: &[u8], info: &GridInfo) -> Parse<Grid> {
+pub(super) fn load_float(buf: &[u8], info: &GridMetaData) -> Parse<Grid> {
     let b = Bytes(buf);
     check_header(b, info)?;
     let tree = TreeData::read(b)?;
@@ -134,7 +134,7 @@ pub(super) fn load_float(buf: &[u8], info: &GridInfo) -> Parse<Grid> {
     walk.finish(&tree)
 }
 
-fn check_header(b: Bytes, info: &GridInfo) -> Parse<()> {
+fn check_header(b: Bytes, info: &GridMetaData) -> Parse<()> {
     let magic = b.u64(0)?;
     if magic != MAGIC_NUMB && magic != MAGIC_GRID {
         return Err(format!("bad grid magic {magic:#018x}"));

@@ -1,8 +1,7 @@
 //! Bounds-checked little-endian reads over the file held in memory. Every read names what
 //! it was reading, so a truncated or corrupt file yields a message that says where it broke.
 
-/// A parse failure, turned into `Error::format` (with the path) at the public API.
-pub type Parse<T> = std::result::Result<T, String>;
+pub use crate::media::Parse;
 
 #[derive(Clone)]
 pub struct Reader<'a> {

@@ -33,7 +33,7 @@ const KNOWN_COMPRESSION: u32 =
 
 /// One grid of a file, as listed by [`list_grids`].
 #[derive(Clone, Debug, PartialEq)]
-pub struct GridInfo {
+pub struct GridDescriptor {
     /// The grid's name (without the suffix OpenVDB adds to duplicate names).
     pub name: String,
     /// The tree type as written, without the `_HalfFloat` suffix, e.g. `Tree_float_5_4_3`.
@@ -58,13 +58,13 @@ struct Descriptor {
 }
 
 /// Lists the grids of a `.vdb` file in file order.
-pub fn list_grids(path: &Path) -> Result<Vec<GridInfo>> {
+pub fn list_grids(path: &Path) -> Result<Vec<GridDescriptor>> {
     let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     list_grids_from(path, &data)
 }
 
 /// [`list_grids`] of a file already read: `data` is its bytes, `path` names it in errors.
-pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridInfo>> {
+pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridDescriptor>> {
     let descs = read_descriptors(data).map_err(|m| Error::format(path, m))?;
     descs
         .iter()
@@ -73,7 +73,7 @@ pub fn list_grids_from(path: &Path, data: &[u8]) -> Result<Vec<GridInfo>> {
             let mut r = Reader::new(data);
             let (_, class) = read_grid_start(&mut r, d)
                 .map_err(|m| Error::format(path, format!("grid \"{}\": {m}", d.name)))?;
-            Ok(GridInfo {
+            Ok(GridDescriptor {
                 name: d.name.clone(),
                 value_type: d.tree_type.clone(),
                 class,
