@@ -625,7 +625,6 @@ fn medium(
     m: &FileMedium,
     cache: &mut AssetCache,
 ) -> Result<Medium> {
-    let f = |k: &str| format!("medium[{i}].{k}");
     let g = |phase: &Option<FilePhase>| match phase {
         None | Some(FilePhase::Isotropic) => None,
         Some(FilePhase::Hg { g }) => Some(*g),
@@ -639,7 +638,7 @@ fn medium(
             phase,
             transform,
         } => {
-            let mp = MediumSpec {
+            let spec = MediumSpec {
                 density_scale: Some(*density_scale),
                 albedo: Some(*albedo),
                 g: g(phase),
@@ -649,25 +648,9 @@ fn medium(
                     scale: t.scale,
                 }),
                 ..Default::default()
-            }
-            .check(ck.path, toml_field(i))?;
-            let p = dir.join(path);
+            };
             let name = grid.as_deref().unwrap_or("density");
-            Format::of_kind(&p, &Format::GRIDS).map_err(|e| ck.err(&f("path"), e.to_string()))?;
-            let (loaded, mut h) = cache.grid_file(&p, name, |bytes| {
-                GridFile::from_bytes(&p, bytes)?.load(name)
-            })?;
-            let (scale, xf) = (mp.density_scale, mp.transform);
-            h.update(format!("{name} {scale} {xf:?}").as_bytes());
-            Ok(Medium::Grid(GridMedium::new(
-                loaded,
-                xf,
-                scale,
-                mp.albedo,
-                mp.phase,
-                format!("{} [{name}]", p.display()),
-                *h.finalize().as_bytes(),
-            )))
+            grid_medium(ck, i, &dir.join(path), name, spec, cache).map(Medium::Grid)
         }
         FileMedium::Homogeneous {
             bounds,
@@ -683,7 +666,7 @@ fn medium(
             }
             .check(ck.path, toml_field(i))?;
             Ok(Medium::Homogeneous(MediumDesc {
-                bounds: check_bounds(ck, &f("bounds"), bounds)?,
+                bounds: check_bounds(ck, &format!("medium[{i}].bounds"), bounds)?,
                 sigma_t: mp.sigma_t,
                 albedo: mp.albedo,
                 phase: mp.phase,
@@ -700,63 +683,104 @@ fn medium(
             albedo,
             phase,
         } => {
-            let preset = match preset.as_str() {
-                "cloud" => Preset::Cloud,
-                "smoke" => Preset::Smoke,
-                "fog" => Preset::Fog,
-                other => {
-                    return Err(ck.err(
-                        &f("preset"),
-                        format!("expected cloud, smoke or fog, got \"{other}\""),
-                    ))
-                }
-            };
             let params = NoiseParams {
-                preset,
-                bounds: check_bounds(ck, &f("bounds"), bounds)?,
+                preset: noise_preset(ck, i, preset)?,
+                bounds: check_bounds(ck, &format!("medium[{i}].bounds"), bounds)?,
                 seed: seed.unwrap_or(1),
                 octaves: octaves.unwrap_or(6),
                 frequency: frequency.unwrap_or(2.0),
                 resolution: resolution.unwrap_or(DEFAULT_RESOLUTION),
             };
-            if !(1..=12).contains(&params.octaves) {
-                return Err(ck.err(
-                    &f("octaves"),
-                    format!("expected 1..=12, got {}", params.octaves),
-                ));
-            }
-            if !(params.frequency.is_finite() && params.frequency > 0.0) {
-                return Err(ck.err(&f("frequency"), "expected a finite number > 0".into()));
-            }
-            if !(2..=1024).contains(&params.resolution) {
-                return Err(ck.err(
-                    &f("resolution"),
-                    format!("expected 2..=1024 voxels, got {}", params.resolution),
-                ));
-            }
-            let mp = MediumSpec {
+            let spec = MediumSpec {
                 density_scale: Some(*density_scale),
                 albedo: Some(*albedo),
                 g: g(phase),
                 ..Default::default()
-            }
-            .check(ck.path, toml_field(i))?;
-            let scale = mp.density_scale;
-            let hash = blake3::hash(format!("noise {params:?} {scale}").as_bytes());
-            let key = format!("noise {params:?}");
-            let field_hash = *blake3::hash(key.as_bytes()).as_bytes();
-            let grid = cache.grid(&key, field_hash, || Ok(procedural::build(&params)))?;
-            Ok(Medium::Grid(GridMedium::new(
-                grid,
-                DAffine3::IDENTITY,
-                scale,
-                mp.albedo,
-                mp.phase,
-                format!("noise {:?} seed {}", params.preset, params.seed),
-                *hash.as_bytes(),
-            )))
+            };
+            noise_medium(ck, i, params, spec, cache).map(Medium::Grid)
         }
     }
+}
+
+/// A grid medium from grid `name` of the file at `p` (read once: hashed and parsed from
+/// the same bytes).
+fn grid_medium(
+    ck: &Check,
+    i: usize,
+    p: &Path,
+    name: &str,
+    spec: MediumSpec,
+    cache: &mut AssetCache,
+) -> Result<GridMedium> {
+    let mp = spec.check(ck.path, toml_field(i))?;
+    Format::of_kind(p, &Format::GRIDS)
+        .map_err(|e| ck.err(&format!("medium[{i}].path"), e.to_string()))?;
+    let (loaded, mut h) =
+        cache.grid_file(p, name, |bytes| GridFile::from_bytes(p, bytes)?.load(name))?;
+    let (scale, xf) = (mp.density_scale, mp.transform);
+    h.update(format!("{name} {scale} {xf:?}").as_bytes());
+    Ok(GridMedium::new(
+        loaded,
+        xf,
+        scale,
+        mp.albedo,
+        mp.phase,
+        format!("{} [{name}]", p.display()),
+        *h.finalize().as_bytes(),
+    ))
+}
+
+fn noise_preset(ck: &Check, i: usize, preset: &str) -> Result<Preset> {
+    match preset {
+        "cloud" => Ok(Preset::Cloud),
+        "smoke" => Ok(Preset::Smoke),
+        "fog" => Ok(Preset::Fog),
+        other => Err(ck.err(
+            &format!("medium[{i}].preset"),
+            format!("expected cloud, smoke or fog, got \"{other}\""),
+        )),
+    }
+}
+
+/// A procedural noise medium (its grid built once per parameter set and kept).
+fn noise_medium(
+    ck: &Check,
+    i: usize,
+    params: NoiseParams,
+    spec: MediumSpec,
+    cache: &mut AssetCache,
+) -> Result<GridMedium> {
+    let f = |k: &str| format!("medium[{i}].{k}");
+    if !(1..=12).contains(&params.octaves) {
+        return Err(ck.err(
+            &f("octaves"),
+            format!("expected 1..=12, got {}", params.octaves),
+        ));
+    }
+    if !(params.frequency.is_finite() && params.frequency > 0.0) {
+        return Err(ck.err(&f("frequency"), "expected a finite number > 0".into()));
+    }
+    if !(2..=1024).contains(&params.resolution) {
+        return Err(ck.err(
+            &f("resolution"),
+            format!("expected 2..=1024 voxels, got {}", params.resolution),
+        ));
+    }
+    let mp = spec.check(ck.path, toml_field(i))?;
+    let scale = mp.density_scale;
+    let hash = blake3::hash(format!("noise {params:?} {scale}").as_bytes());
+    let key = format!("noise {params:?}");
+    let field_hash = *blake3::hash(key.as_bytes()).as_bytes();
+    let grid = cache.grid(&key, field_hash, || Ok(procedural::build(&params)))?;
+    Ok(GridMedium::new(
+        grid,
+        DAffine3::IDENTITY,
+        scale,
+        mp.albedo,
+        mp.phase,
+        format!("noise {:?} seed {}", params.preset, params.seed),
+        *hash.as_bytes(),
+    ))
 }
 
 fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> Result<[Vec3; 2]> {

@@ -5,7 +5,8 @@
 //!   than t;
 //! - stratified (the paper's sec. 4.3): the free paths of a block of N passes are drawn at
 //!   once per pixel, sorted into M strata of N/M, and every pass uses one not yet used path
-//!   of each stratum (primary segments; later segments use random);
+//!   of each stratum, in an order drawn per cycle of N/M passes so that what a pass uses
+//!   follows from its index alone (primary segments; later segments use random);
 //! - ratio: ratio tracking (Novak et al. 2014) along the octree's local majorants, a
 //!   continuous estimate Tr(t) = product over tentative collisions before t of
 //!   (1 - sigma_t(x) / majorant).
