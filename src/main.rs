@@ -2,7 +2,7 @@
 mod app;
 
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -52,7 +52,7 @@ Errors: a syntax error, a missing or truncated asset or a file caught mid-write 
 with the file and line, and the last good scene keeps rendering until the file is fixed. The \
 EXR and PNG are rewritten atomically (after the first pass of each reload, then every \
 --checkpoint), so a broken scene never replaces a good image.\n\n\
---window shows the image live (Vulkan through wgpu; title: passes, time, last error; keys: \
+--window shows the image live (Vulkan through wgpu; title: passes, time, device, exposure, last error; keys: \
 +/- exposure, S snapshot to <output>-snapshot-N.exr/png, Esc/Q quit). Without a display it \
 prints an error and keeps writing the files. The terminal shows one status line: scene, pass, \
 passes per second, the last reload and what it reloaded."
@@ -112,6 +112,8 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    #[cfg(unix)]
+    private_runtime_dir();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => app::render(args),
@@ -129,5 +131,28 @@ fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::from(2)
         }
+    }
+}
+
+/// Mesa's Vulkan drivers print "error: XDG_RUNTIME_DIR is invalid or not set" whenever
+/// wgpu probes adapters without that folder (ssh sessions, containers, CI), which
+/// `--device auto` does on every render and watch. Without a usable one, point it at a
+/// private folder of ours (0700, owned by this user) before any thread starts.
+#[cfg(unix)]
+fn private_runtime_dir() {
+    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+    let usable = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| Path::new(&d).is_dir());
+    if usable {
+        return;
+    }
+    // SAFETY: getuid has no preconditions.
+    let uid = unsafe { libc::getuid() };
+    let dir = std::env::temp_dir().join(format!("ppb-runtime-{uid}"));
+    let _ = std::fs::DirBuilder::new().mode(0o700).create(&dir);
+    let ours = std::fs::symlink_metadata(&dir)
+        .is_ok_and(|m| m.is_dir() && m.uid() == uid && m.mode() & 0o077 == 0);
+    if ours {
+        // Sound: no other thread exists yet.
+        std::env::set_var("XDG_RUNTIME_DIR", &dir);
     }
 }

@@ -338,3 +338,28 @@ fn bench_table_with_repeats() {
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
 }
+
+/// Probing for a GPU (`--device auto` and `gpu`, on every render and watch) without
+/// XDG_RUNTIME_DIR set, as in ssh sessions, containers and CI: Mesa's Vulkan drivers
+/// would print "error: XDG_RUNTIME_DIR is invalid"; ppb points it at a private folder, so
+/// stderr holds only ppb's own lines.
+#[test]
+fn no_runtime_dir_noise_when_probing_the_gpu() {
+    let dir = common::temp_dir("cli", "runtime-dir");
+    let scene = scene(&dir, "");
+    for device in ["auto", "gpu"] {
+        let o = ppb()
+            .env_remove("XDG_RUNTIME_DIR")
+            .args(["render", "--device", device, "--passes", "1", "-o"])
+            .arg(dir.join("a.exr"))
+            .arg(&scene)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!err.contains("XDG_RUNTIME_DIR"), "--device {device}: {err}");
+        if o.status.success() {
+            assert!(err.lines().any(|l| l.starts_with("beam estimate on the")), "{err}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -35,8 +35,9 @@ pub struct WatchArgs {
     /// current folder.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Show the image live in a window (title: passes, time, last error; keys: + and -
-    /// change the exposure, S saves a snapshot, Esc or Q quits).
+    /// Show the image live in a window (title: passes, time, the beam estimate's device,
+    /// exposure, last error; keys: + and - change the exposure, S saves a snapshot, Esc or
+    /// Q quits).
     #[arg(long)]
     pub window: bool,
     /// Passes per (re)start, overriding [render].passes; 0 refines forever.
@@ -101,6 +102,8 @@ pub struct Frame {
     pub seconds: f64,
     pub exposure: f32,
     pub scene: String,
+    /// Where the beam estimate runs ("cpu" or the adapter).
+    pub device: String,
     pub error: Option<String>,
     /// Bumped on every new image, so the window uploads only when it changed.
     pub serial: u64,
@@ -649,6 +652,7 @@ impl Worker {
             f.height = img.height as u32;
             f.pixels = img.pixels;
             f.passes = cur.session.passes();
+            f.device = cur.session.device();
             f.seconds = self.gen_start.elapsed().as_secs_f64();
             f.exposure = cur.settings.exposure;
             f.scene = self.status.scene.clone();

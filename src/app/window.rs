@@ -198,8 +198,8 @@ impl App {
             .as_ref()
             .map_or(String::new(), |e| format!(" | error: {e}"));
         g.window.set_title(&format!(
-            "ppb watch | {} | pass {} | {:.1} s | exposure {exposure:+.1}{error}",
-            frame.scene, frame.passes, frame.seconds
+            "ppb watch | {} | pass {} | {:.1} s | beams on {} | exposure {exposure:+.1}{error}",
+            frame.scene, frame.passes, frame.seconds, frame.device
         ));
         g.draw(exposure);
     }
