@@ -38,12 +38,8 @@ pub struct Overrides {
     /// Image size, e.g. 64x64 (overrides [render].width and height).
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
-    /// Light paths traced per pass (overrides [render].light_paths).
-    #[arg(long, value_name = "N")]
-    pub light_paths: Option<usize>,
-    /// Deprecated name of --light-paths.
-    #[arg(long, hide = true, value_name = "N")]
-    pub beams: Option<usize>,
+    #[command(flatten)]
+    pub paths: LightPaths,
     /// PNG (and window) exposure in stops (overrides [render].exposure).
     #[arg(long)]
     pub exposure: Option<f32>,
@@ -78,10 +74,7 @@ impl Overrides {
         if let Some((w, h)) = self.size {
             (s.width, s.height) = (w, h);
         }
-        if self.beams.is_some() {
-            eprintln!("warning: --beams is deprecated, use --light-paths (it counts light paths)");
-        }
-        if let Some(n) = self.light_paths.or(self.beams) {
+        if let Some(n) = self.paths.get() {
             s.light_paths = n.max(1);
         }
         if let Some(e) = self.exposure {
@@ -103,6 +96,27 @@ impl Overrides {
             s.tr_block = n;
         }
         Ok(s)
+    }
+}
+
+/// `--light-paths` and its deprecated old name `--beams`.
+#[derive(Args, Clone, Debug, Default)]
+pub struct LightPaths {
+    /// Light paths traced per pass (overrides [render].light_paths).
+    #[arg(long, value_name = "N")]
+    pub light_paths: Option<usize>,
+    /// Deprecated name of --light-paths.
+    #[arg(long, hide = true, value_name = "N")]
+    pub beams: Option<usize>,
+}
+
+impl LightPaths {
+    /// The count asked for; one line warns of the old name.
+    fn get(&self) -> Option<usize> {
+        if self.beams.is_some() {
+            eprintln!("warning: --beams is deprecated, use --light-paths (it counts light paths)");
+        }
+        self.light_paths.or(self.beams)
     }
 }
 

@@ -112,9 +112,15 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    #[cfg(unix)]
-    private_runtime_dir();
     let cli = Cli::parse();
+    // Only the commands that may probe for a GPU need it.
+    #[cfg(unix)]
+    if matches!(
+        cli.command,
+        Command::Render(_) | Command::Watch(_) | Command::BenchGpu(_)
+    ) {
+        private_runtime_dir();
+    }
     let result = match cli.command {
         Command::Render(args) => app::render(args),
         Command::Watch(args) => app::watch(args),
@@ -137,7 +143,8 @@ fn main() -> ExitCode {
 /// Mesa's Vulkan drivers print "error: XDG_RUNTIME_DIR is invalid or not set" whenever
 /// wgpu probes adapters without that folder (ssh sessions, containers, CI), which
 /// `--device auto` does on every render and watch. Without a usable one, point it at a
-/// private folder of ours (0700, owned by this user) before any thread starts.
+/// private folder of ours (0700, owned by this user) before any thread starts (clap's
+/// parsing starts none).
 #[cfg(unix)]
 fn private_runtime_dir() {
     use std::os::unix::fs::{DirBuilderExt, MetadataExt};

@@ -358,7 +358,10 @@ fn no_runtime_dir_noise_when_probing_the_gpu() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!err.contains("XDG_RUNTIME_DIR"), "--device {device}: {err}");
         if o.status.success() {
-            assert!(err.lines().any(|l| l.starts_with("beam estimate on the")), "{err}");
+            assert!(
+                err.lines().any(|l| l.starts_with("beam estimate on the")),
+                "{err}"
+            );
         }
     }
     std::fs::remove_dir_all(&dir).ok();

@@ -25,7 +25,7 @@ use ppb::transport::transmittance::TrMode;
 use ppb::transport::Counters;
 use ppb::watch::octrees;
 
-use super::{parse_size, scene_name, Overrides};
+use super::{parse_size, scene_name, LightPaths, Overrides};
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -35,12 +35,8 @@ pub struct BenchArgs {
     /// Passes per scene.
     #[arg(long, default_value_t = 4)]
     pub passes: u32,
-    /// Light paths per pass (default: the scene's).
-    #[arg(long, value_name = "N")]
-    pub light_paths: Option<usize>,
-    /// Deprecated name of --light-paths.
-    #[arg(long, hide = true, value_name = "N")]
-    pub beams: Option<usize>,
+    #[command(flatten)]
+    pub paths: LightPaths,
     /// Image size override, e.g. 128x128.
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
@@ -51,8 +47,7 @@ impl BenchArgs {
     fn settings(&self, file: &SceneFile) -> Result<RenderSettings> {
         Overrides {
             size: self.size,
-            light_paths: self.light_paths,
-            beams: self.beams,
+            paths: self.paths.clone(),
             ..Default::default()
         }
         .apply(&file.settings)
@@ -205,12 +200,8 @@ pub struct BenchTrArgs {
     /// Render size; the reference is averaged over blocks to match (must divide it).
     #[arg(long, value_parser = parse_size, default_value = "128x128")]
     pub size: (u32, u32),
-    /// Light paths per pass (default: the scene's).
-    #[arg(long, value_name = "N")]
-    pub light_paths: Option<usize>,
-    /// Deprecated name of --light-paths.
-    #[arg(long, hide = true, value_name = "N")]
-    pub beams: Option<usize>,
+    #[command(flatten)]
+    pub paths: LightPaths,
     /// Write every measurement as CSV (scene,config,passes,seconds,rel_l1,rel_l1_media)
     /// for tools/plot_tr.py.
     #[arg(long)]
@@ -362,8 +353,7 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
         base.photon_radius = ppb::settings::Radius::Fixed(full.photon_r1);
         let over = Overrides {
             size: Some(args.size),
-            light_paths: args.light_paths,
-            beams: args.beams,
+            paths: args.paths.clone(),
             ..Default::default()
         };
         base = over.apply(&base)?;

@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 
 use ppb::error::Error as PpbError;
 use ppb::gpu::Gpu;
+use ppb::output::Image;
 use ppb::pass::Tracer;
 use ppb::plan::Ramp;
 use ppb::scene::assets::AssetCache;
@@ -397,7 +398,11 @@ impl Worker {
                 self.status.last_reload = what;
                 self.publish_error();
                 if c.exposure {
-                    self.write_outputs("exposure");
+                    match self.image() {
+                        Some(Ok(img)) => self.write_outputs("exposure", &img),
+                        Some(Err(e)) => self.error(format!("reading the image: {e}")),
+                        None => {}
+                    }
                 }
                 return;
             }
@@ -504,13 +509,19 @@ impl Worker {
             Checkpoint::Seconds(s) => self.last_write.elapsed().as_secs_f64() >= s,
         };
         let last = self.budget() != 0 && i >= self.budget();
-        if self.written_at_pass == 0 || due || last {
-            let why = if self.written_at_pass == 0 {
-                "first pass"
-            } else {
-                "checkpoint"
+        let write = self.written_at_pass == 0 || due || last;
+        // One image per pass serves both the files and the window (a read-back on the GPU).
+        if write || self.wake.is_some() {
+            let img = match self.image() {
+                Some(Ok(img)) => img,
+                Some(Err(e)) => return self.error(format!("reading the image: {e}")),
+                None => return,
             };
-            self.write_outputs(why);
+            if write {
+                let first = self.written_at_pass == 0;
+                self.write_outputs(if first { "first pass" } else { "checkpoint" }, &img);
+            }
+            self.publish(img);
         }
         if last {
             self.status.log(&format!(
@@ -520,7 +531,6 @@ impl Worker {
                 self.out.display()
             ));
         }
-        self.publish();
         self.show_status();
     }
 
@@ -528,18 +538,24 @@ impl Worker {
         self.gen_start.elapsed().as_secs_f64()
     }
 
-    /// The current image written to `path` with `exposure` (and `extra` header lines).
+    /// The current image (None before a scene's first pass).
+    fn image(&mut self) -> Option<ppb::error::Result<Image>> {
+        let cur = self.current.as_mut()?;
+        (cur.session.passes() > 0).then(|| cur.session.image())
+    }
+
+    /// `img` written to `path` with `exposure` (and `extra` header lines); returns its
+    /// passes.
     fn write_image(
-        &mut self,
+        &self,
         path: &Path,
+        img: &Image,
         exposure: f32,
         extra: &[(String, String)],
     ) -> Result<u32> {
-        let seconds = self.seconds();
-        let Some(cur) = &mut self.current else {
+        let Some(cur) = &self.current else {
             anyhow::bail!("no image yet");
         };
-        let img = cur.session.image()?;
         let settings = RenderSettings {
             exposure,
             ..cur.settings.clone()
@@ -548,26 +564,22 @@ impl Worker {
             scene: &self.args.scene,
             settings: &settings,
             passes: cur.session.passes(),
-            seconds,
+            seconds: self.seconds(),
             extra,
         };
-        super::write_outputs(path, &img, &meta)?;
+        super::write_outputs(path, img, &meta)?;
         Ok(meta.passes)
     }
 
-    /// Rewrites the EXR and PNG (atomically); the first write of a generation is logged
-    /// with the time since the change was seen.
-    fn write_outputs(&mut self, why: &str) {
+    /// Rewrites the EXR and PNG with `img` (atomically); the first write of a generation
+    /// is logged with the time since the change was seen.
+    fn write_outputs(&mut self, why: &str, img: &Image) {
         let Some(cur) = &self.current else {
             return;
         };
-        if cur.session.passes() == 0 {
-            return;
-        }
         let exposure = cur.settings.exposure;
         let extra = [("ppb.reload".to_string(), self.generation.to_string())];
-        let out = self.out.clone();
-        let r = self.write_image(&out, exposure, &extra);
+        let r = self.write_image(&self.out, img, exposure, &extra);
         self.last_write = Instant::now();
         if let Err(e) = r {
             return self.error(format!("writing {}: {e:#}", self.out.display()));
@@ -589,15 +601,17 @@ impl Worker {
 
     /// Writes `<out>-snapshot-N.exr/.png` with the window's exposure.
     fn snapshot(&mut self, exposure: f32) {
-        if self.current.is_none() {
-            return self.error("snapshot: no image yet".into());
-        }
+        let img = match self.image() {
+            Some(Ok(img)) => img,
+            Some(Err(e)) => return self.error(format!("snapshot: {e}")),
+            None => return self.error("snapshot: no image yet".into()),
+        };
         self.snapshots += 1;
         let stem = self.out.file_stem().unwrap_or_default().to_string_lossy();
         let path = self
             .out
             .with_file_name(format!("{stem}-snapshot-{}.exr", self.snapshots));
-        match self.write_image(&path, exposure, &[]) {
+        match self.write_image(&path, &img, exposure, &[]) {
             Ok(passes) => self
                 .status
                 .log(&format!("snapshot {} ({passes} passes)", path.display(),)),
@@ -633,18 +647,8 @@ impl Worker {
     }
 
     /// Hands the current image to the window.
-    fn publish(&mut self) {
-        if self.wake.is_none() {
-            return;
-        }
-        let Some(cur) = &mut self.current else {
-            return;
-        };
-        let img = match cur.session.image() {
-            Ok(img) => img,
-            Err(e) => return self.error(format!("reading the image: {e}")),
-        };
-        let Some(cur) = &self.current else {
+    fn publish(&mut self, img: Image) {
+        let (Some(cur), Some(wake)) = (&self.current, &self.wake) else {
             return;
         };
         if let Ok(mut f) = self.shared.lock() {
@@ -659,9 +663,7 @@ impl Worker {
             f.error = self.status.last_error.clone();
             f.serial += 1;
         }
-        if let Some(w) = &self.wake {
-            w();
-        }
+        wake();
     }
 
     /// Hands the window the latest error and exposure (no new image).

@@ -97,6 +97,11 @@ impl Media {
         self.grids.iter().map(|g| g.sigma_t(p)).sum()
     }
 
+    /// Whether the ray meets any grid's box over [0, tmax].
+    pub fn crosses_grids(&self, ray: &Ray, tmax: f32) -> bool {
+        self.grids.iter().any(|g| g.interval(ray, tmax).is_some())
+    }
+
     /// The constant-extinction pieces of the ray inside any homogeneous medium, front to
     /// back.
     pub fn pieces(&self, ray: &Ray, tmax: f32) -> Pieces {

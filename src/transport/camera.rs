@@ -163,6 +163,8 @@ struct StratPlan {
     slot: usize,
     /// The store holds another block's paths: draw this one's.
     regenerate: bool,
+    /// The strata are in another cycle's order: shuffle them into this one's.
+    reshuffle: bool,
 }
 
 /// Everything a camera pass reads.
@@ -189,13 +191,16 @@ impl CameraTracer<'_> {
                 let n = st.n as u32;
                 let block = (pass - 1) / n;
                 let q = st.cycle() as u32;
+                let cycle = block * MAX_TR_BLOCK as u32 + (pass - 1) % n / q;
                 let plan = StratPlan {
                     block,
-                    cycle: block * MAX_TR_BLOCK as u32 + (pass - 1) % n / q,
+                    cycle,
                     slot: ((pass - 1) % q) as usize,
                     regenerate: st.block != Some(block),
+                    reshuffle: st.cycle != Some(cycle),
                 };
                 st.block = Some(block);
+                st.cycle = Some(cycle);
                 (Some(plan), st.rows_mut(w).into_iter().map(Some).collect())
             }
             None => (None, Vec::new()),
@@ -224,6 +229,7 @@ impl CameraTracer<'_> {
                             StratPixel {
                                 paths: &mut paths[x * n..(x + 1) * n],
                                 regenerate: p.regenerate,
+                                reshuffle: p.reshuffle,
                                 block_rng: Rng::for_path(seed, p.block, Stream::TrBlock, idx),
                                 cycle_rng: Rng::for_path(seed, p.cycle, Stream::TrCycle, idx),
                                 slot: p.slot,
@@ -371,13 +377,7 @@ impl CameraTracer<'_> {
         c: &mut Counters,
         strat: Option<StratPixel>,
     ) -> SegmentTr {
-        if in_glass
-            || !self
-                .media
-                .grids
-                .iter()
-                .any(|g| g.interval(ray, t_surf).is_some())
-        {
+        if in_glass || !self.media.crosses_grids(ray, t_surf) {
             return SegmentTr::Clear;
         }
         let (fp, m) = (&self.free_path, self.tr_samples);

@@ -144,6 +144,8 @@ pub struct StratStore {
     pub m: usize,
     /// Block whose paths are stored, if any.
     pub block: Option<u32>,
+    /// Cycle (key of its random stream) whose order the strata are shuffled in.
+    pub cycle: Option<u32>,
     paths: Vec<f32>,
 }
 
@@ -156,6 +158,8 @@ pub struct StratPixel<'a> {
     pub paths: &'a mut [f32],
     /// Draw this block's paths before use.
     pub regenerate: bool,
+    /// Shuffle the strata into this cycle's order before use.
+    pub reshuffle: bool,
     /// Random stream of the block (draws the paths).
     pub block_rng: Rng,
     /// Random stream of the cycle (the order in which its passes use each stratum).
@@ -170,6 +174,7 @@ impl StratStore {
             n,
             m,
             block: None,
+            cycle: None,
             paths: vec![f32::INFINITY; pixels * n],
         }
     }
@@ -187,7 +192,9 @@ impl StratStore {
 
 impl StratPixel<'_> {
     /// This pass's M lengths: in each stratum, the path at this pass's slot of the cycle's
-    /// random order (the first `slot + 1` steps of a Fisher-Yates shuffle).
+    /// random order. At a cycle's first pass each stratum is put back in sorted order and
+    /// shuffled (Fisher-Yates) from the cycle's stream, so the order follows from the
+    /// cycle alone; the other passes of the cycle only read it.
     pub fn pick(
         &mut self,
         fp: &FreePath,
@@ -206,17 +213,18 @@ impl StratPixel<'_> {
             self.paths.sort_by(f32::total_cmp);
         }
         let q = self.paths.len() / m;
+        if self.regenerate || self.reshuffle {
+            for stratum in self.paths.chunks_mut(q).take(m) {
+                stratum.sort_by(f32::total_cmp);
+                for i in (1..q).rev() {
+                    let j = ((self.cycle_rng.f32() * (i + 1) as f32) as usize).min(i);
+                    stratum.swap(i, j);
+                }
+            }
+        }
         let mut lengths = [f32::INFINITY; MAX_TR_SAMPLES];
-        let mut order = [0u8; MAX_TR_BLOCK];
         for (s, l) in lengths.iter_mut().take(m).enumerate() {
-            for (i, o) in order[..q].iter_mut().enumerate() {
-                *o = i as u8;
-            }
-            for i in 0..=self.slot.min(q - 1) {
-                let j = i + ((self.cycle_rng.f32() * (q - i) as f32) as usize).min(q - i - 1);
-                order.swap(i, j);
-            }
-            *l = self.paths[s * q + order[self.slot.min(q - 1)] as usize];
+            *l = self.paths[s * q + self.slot.min(q - 1)];
         }
         SegmentTr::FreePaths {
             lengths,
@@ -512,6 +520,7 @@ mod estimator_tests {
                 let mut px = StratPixel {
                     paths: &mut paths,
                     regenerate: k == 0,
+                    reshuffle: k % q == 0,
                     block_rng: Rng::new(1000 + b as u64, 3),
                     cycle_rng: Rng::new(2000 + (b as u64) * 64 + (k / q) as u64, 5),
                     slot: k % q,
