@@ -10,6 +10,7 @@
 const MAX_BOXES: u32 = 16u;
 const MAX_GRIDS: u32 = 8u;
 const EMPTY: u32 = 0xffffffffu;
+const TILE_SLOT: u32 = 0x80000000u;
 const PI: f32 = 3.14159265358979;
 
 struct MediumBox {
@@ -132,7 +133,10 @@ fn voxel(gi: u32, ijk: vec3<i32>) -> f32 {
         slot = grid_data[m.table_base + u32((d.x * m.table_dim.y + d.y) * m.table_dim.z + d.z)];
     }
     var v = m.background;
-    if slot != EMPTY {
+    if slot != EMPTY && (slot & TILE_SLOT) != 0u {
+        // A slot a tile covers whole, as `Grid::value`.
+        v = bitcast<f32>(grid_data[m.tile_base + 7u * (slot & ~TILE_SLOT) + 6u]);
+    } else if slot != EMPTY {
         let l = ijk & vec3<i32>(7);
         v = bitcast<f32>(grid_data[m.leaf_base + slot * 512u + u32((l.x * 8 + l.y) * 8 + l.z)]);
     } else {
@@ -221,7 +225,7 @@ fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
 
 // The piece's eq. 2 term in xyz, and 1 in w when the pair counts: `estimate::eq2::term`,
 // the same arithmetic (`crossing`) and the same half-open edge rule, t0 <= t < t1,
-// s0 <= s < s1, d < r (sin^2 theta >= 1e-10: not parallel).
+// s0 <= s < s1, d^2 < r^2 (sin^2 theta >= 1e-10: not parallel).
 fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let r = params.radius;
     let w = seg.dir;
@@ -234,8 +238,8 @@ fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let sin2_safe = max(sin2, 1e-10);
     let t = (b * e - d) / sin2_safe;
     let s = (e - b * d) / sin2_safe;
-    let dist = length(w0 + w * t - psi * s);
-    let ok = sin2 >= 1e-10 && dist < r && seg.t0 <= t && t < seg.t1 && p.s0 <= s && s < p.s1;
+    let v = w0 + w * t - psi * s;
+    let ok = sin2 >= 1e-10 && dot(v, v) < r * r && seg.t0 <= t && t < seg.t1 && p.s0 <= s && s < p.s1;
     var out = vec4<f32>(0.0);
     if ok {
         let x = seg.origin + w * t;

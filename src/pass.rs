@@ -13,8 +13,9 @@ use crate::media::homogeneous::ray_box;
 use crate::media::Media;
 use crate::plan::{PassPlan, Plan};
 use crate::scene::{Rgb, Scene};
-use crate::settings::{Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
+use crate::settings::{Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
 use crate::transport::camera::{CameraPass, CameraTracer, Pinhole};
+use crate::transport::direct::Direct;
 use crate::transport::freepath::FreePath;
 use crate::transport::light::{LightSampler, LightTracer};
 use crate::transport::transmittance::{StratStore, TrMode, MAX_TR_BLOCK};
@@ -164,6 +165,7 @@ impl Tracer {
         Plan {
             seed: self.settings.seed,
             alpha: self.settings.alpha,
+            photon_alpha: self.settings.photon_alpha,
             beam_r1: self.beam_r1,
             photon_r1: self.photon_r1,
             light_paths: self.settings.light_paths,
@@ -200,6 +202,7 @@ impl Tracer {
             media: &self.media,
             free_path,
             beam_margin: p.beam_radius,
+            skip_direct: s.method == Method::Hybrid,
         };
         let light = lt.trace_pass(p.seed, p.index, p.light_paths);
         let t1 = Instant::now();
@@ -215,6 +218,11 @@ impl Tracer {
             tr_samples: s.tr_samples,
             tr_mode: s.tr_mode,
             photons: &photons,
+            direct: (s.method == Method::Hybrid).then_some(Direct {
+                lights: &self.lights,
+                geometry: &self.geometry,
+                free_path,
+            }),
         };
         let camera = ct.trace_pass(p.seed, p.index, strat);
         let t3 = Instant::now();

@@ -9,8 +9,9 @@ use crate::estimate::radius;
 pub struct Plan {
     /// Seed of every random stream (`[render].seed`).
     pub seed: u64,
-    /// Radius reduction of eq. 3.
+    /// Radius reduction of eq. 3: beams, photons.
     pub alpha: f32,
+    pub photon_alpha: f32,
     /// R1 of the beams and of the photons (m).
     pub beam_r1: f32,
     pub photon_r1: f32,
@@ -42,7 +43,7 @@ impl Plan {
             index,
             seed: self.seed,
             beam_radius: radius::beam_radius(self.beam_r1, index, self.alpha),
-            photon_radius: radius::photon_radius(self.photon_r1, index, self.alpha),
+            photon_radius: radius::photon_radius(self.photon_r1, index, self.photon_alpha),
             light_paths: light_paths.max(1),
         }
     }
@@ -101,6 +102,7 @@ mod tests {
         let plan = Plan {
             seed: 3,
             alpha: 0.9,
+            photon_alpha: 2.0 / 3.0,
             beam_r1: 0.5,
             photon_r1: 0.2,
             light_paths: 1000,
@@ -109,7 +111,8 @@ mod tests {
         assert_eq!(p, plan.pass(2));
         assert_eq!((p.index, p.seed, p.light_paths), (2, 3, 1000));
         assert!((p.beam_radius - 0.5 * 0.95).abs() < 1e-6);
-        assert!((p.photon_radius - 0.2 * 0.95f32.sqrt()).abs() < 1e-6);
+        // Photons follow their own alpha: (1 + 2/3) / 2 for pass 2.
+        assert!((p.photon_radius - 0.2 * (5.0f32 / 6.0).sqrt()).abs() < 1e-6);
         assert_eq!(plan.pass_with_paths(2, 0).light_paths, 1);
     }
 }

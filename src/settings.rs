@@ -15,8 +15,10 @@ pub struct RenderSettings {
     pub passes: u32,
     /// Light paths traced per pass.
     pub light_paths: usize,
-    /// Radius reduction parameter of eq. 3, in (0, 1).
+    /// Radius reduction parameter of eq. 3, in (0, 1), for the beams.
     pub alpha: f32,
+    /// The same for the surface photons (their radius squared follows eq. 3).
+    pub photon_alpha: f32,
     pub beam_radius: Radius,
     pub photon_radius: Radius,
     pub seed: u64,
@@ -31,6 +33,18 @@ pub struct RenderSettings {
     pub tr_block: usize,
     /// Depth of the majorant octree pyramid (2^depth finest cells per axis).
     pub octree_depth: u32,
+    pub method: Method,
+}
+
+/// How light reaches the camera.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Direct light by next-event estimation (a shadow ray from each diffuse camera hit
+    /// and from a point on each camera segment in media), beams and photons for the rest.
+    Hybrid,
+    /// The paper's pure method: all light through photon beams and photons.
+    Ppb,
 }
 
 impl Default for RenderSettings {
@@ -41,6 +55,7 @@ impl Default for RenderSettings {
             passes: 64,
             light_paths: 100_000,
             alpha: 0.9,
+            photon_alpha: DEFAULT_PHOTON_ALPHA,
             beam_radius: Radius::Auto,
             photon_radius: Radius::Auto,
             seed: 1,
@@ -50,9 +65,13 @@ impl Default for RenderSettings {
             tr_mode: crate::transport::transmittance::TrMode::Ratio,
             tr_block: crate::transport::transmittance::DEFAULT_TR_BLOCK,
             octree_depth: crate::majorant::octree::DEFAULT_MAX_DEPTH,
+            method: Method::Hybrid,
         }
     }
 }
+
+/// Default alpha of the surface photons (README: measured against the beams' 0.9).
+pub const DEFAULT_PHOTON_ALPHA: f32 = 0.9;
 
 /// Auto beam radius R1, in pixel footprints at the distance of the media's centre.
 pub const AUTO_BEAM_PIXELS: f32 = 1.0;

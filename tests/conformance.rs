@@ -3,19 +3,20 @@
 //! independent seeds A and B give rel_l1(A, B) / 2, the noise-only rel_l1 expected of their
 //! mean; the bound is 1.3 times that (the spread of that estimate) plus the reference's own
 //! 4x4-block noise (reference.json) and a 1 % allowance for kernel bias. Radii are those of
-//! the full-resolution render. A 10 % error in brightness fails both tests.
+//! the full-resolution render. A 10 % error in brightness fails both tests. Every scene is
+//! rendered by both methods (hybrid and the paper's pure PPB), each held to these bounds,
+//! and the two are compared with each other.
 mod common;
 
 use common::gpu_or_skip;
 use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
-use ppb::gpu::Gpu;
 use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
-use ppb::settings::Radius;
+use ppb::settings::{Method, Radius};
 use ppb::transport::freepath::Mode;
 
 const BLOCK: usize = 4;
@@ -25,19 +26,21 @@ fn data(p: &str) -> std::path::PathBuf {
 }
 
 fn render_with(scene: &str, seed: u64, passes: u32, paths: usize, mode: Mode) -> Image {
-    render_on(scene, seed, passes, paths, mode, None)
+    let r = quarter_renderer(scene, seed, paths, mode, Method::Hybrid);
+    Session::cpu(r).render(passes).expect("render")
 }
 
 /// The scene at 1/BLOCK of its resolution, with the radii the full-resolution render would
 /// use: blocks of the reference are compared, so the kernel must not blur more than the
 /// full-resolution render does.
-fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Tracer {
+fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode, method: Method) -> Tracer {
     let file = load(&data(scene)).expect("scene loads");
     let full = Tracer::new(&file.scene, file.settings.clone()).expect("renderer");
     let mut s = file.settings.clone();
     s.beam_radius = Radius::Fixed(full.beam_r1);
     s.photon_radius = Radius::Fixed(full.photon_r1);
     s.free_path = mode;
+    s.method = method;
     s.width /= BLOCK as u32;
     s.height /= BLOCK as u32;
     s.seed = seed;
@@ -45,18 +48,27 @@ fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode) -> Tracer 
     Tracer::new(&file.scene, s).expect("renderer")
 }
 
-/// Renders with the beam estimate on `gpu` (None: the CPU).
-fn render_on(
-    scene: &str,
-    seed: u64,
+/// A conformance render: which scene, how much work, and where the beam estimate runs.
+struct Case<'a> {
+    scene: &'a str,
     passes: u32,
     paths: usize,
-    mode: Mode,
-    gpu: Option<Gpu>,
-) -> Image {
-    let r = quarter_renderer(scene, seed, paths, mode);
-    let mut session = Session::open(r, gpu).expect("estimator");
-    session.render(passes).expect("render")
+    method: Method,
+    device: Device,
+}
+
+impl Case<'_> {
+    /// Renders with seed `seed`; None when the GPU is asked for and there is no adapter
+    /// (and none is required).
+    fn render(&self, seed: u64) -> Option<Image> {
+        let gpu = match self.device {
+            Device::Cpu => None,
+            Device::Gpu => Some(gpu_or_skip(self.scene)?),
+        };
+        let r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
+        let mut session = Session::open(r, gpu).expect("estimator");
+        Some(session.render(self.passes).expect("render"))
+    }
 }
 
 /// The blocks of a full-resolution emitter mask that hold any masked pixel.
@@ -97,6 +109,8 @@ struct Outcome {
     rel_l1: f64,
     noise: f64,
     mean_ratio: f64,
+    /// The mean of the two seeds' renders.
+    image: Image,
 }
 
 impl Outcome {
@@ -124,32 +138,56 @@ enum Device {
     Gpu,
 }
 
-fn check(scene: &str, reference: &str, mask: Option<&str>, passes: u32, paths: usize) -> Outcome {
-    check_on(scene, reference, mask, passes, paths, Device::Cpu).expect("CPU render")
-}
-
-/// None when the GPU is asked for and there is no adapter (and none is required).
-fn check_on(
+/// Both methods against the reference, and against each other: the hybrid's and the pure
+/// method's means differ by no more than their noise allows (1.3 times the two noise
+/// levels added in quadrature, plus 1 % for the pure method's kernel bias in the direct
+/// light).
+fn check_methods(
     scene: &str,
     reference: &str,
     mask: Option<&str>,
     passes: u32,
-    paths: usize,
-    device: Device,
-) -> Option<Outcome> {
-    let gpu = || match device {
-        Device::Cpu => Some(None),
-        Device::Gpu => gpu_or_skip(scene).map(Some),
+    bounds: (f64, f64),
+) {
+    let (ref_noise, mean_tol) = bounds;
+    let run = |method| {
+        let case = Case {
+            scene,
+            passes,
+            paths: 20_000,
+            method,
+            device: Device::Cpu,
+        };
+        let o = check_on(&case, reference, mask).expect("CPU render");
+        o.assert_within(&format!("{scene} ({method:?})"), ref_noise, mean_tol);
+        o
     };
+    let (h, p) = (run(Method::Hybrid), run(Method::Ppb));
+    let skip = mask.map(block_mask);
+    let cross = compare(&h.image, &p.image, skip.as_deref()).unwrap().rel_l1;
+    let bound = 1.3 * h.noise.hypot(p.noise) + 0.01;
+    eprintln!("{scene}: hybrid vs ppb {cross:.4} (bound {bound:.4})");
+    assert!(cross < bound, "{scene}: hybrid vs ppb {cross} >= {bound}");
+}
+
+/// Renders `case` with two seeds and compares their mean with the reference.
+fn check_on(case: &Case, reference: &str, mask: Option<&str>) -> Option<Outcome> {
     let reference = block_mean(&read_exr(&data(reference)).expect("reference"), BLOCK);
     let skip = mask.map(block_mask);
-    let a = render_on(scene, 1, passes, paths, Mode::Adaptive, gpu()?);
-    let b = render_on(scene, 2, passes, paths, Mode::Adaptive, gpu()?);
+    let a = case.render(1)?;
+    let b = case.render(2)?;
     let noise = compare(&a, &b, skip.as_deref()).unwrap().rel_l1 / 2.0;
-    let m = compare(&average(&a, &b), &reference, skip.as_deref()).unwrap();
+    let image = average(&a, &b);
+    let m = compare(&image, &reference, skip.as_deref()).unwrap();
     eprintln!(
-        "{scene} ({}): rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
-        if device == Device::Gpu { "GPU" } else { "CPU" },
+        "{} ({}, {:?}): rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
+        case.scene,
+        if case.device == Device::Gpu {
+            "GPU"
+        } else {
+            "CPU"
+        },
+        case.method,
         m.rel_l1,
         noise,
         m.mean[0],
@@ -159,32 +197,31 @@ fn check_on(
         rel_l1: m.rel_l1,
         noise,
         mean_ratio: m.mean[0] / m.mean_ref[0],
+        image,
     })
 }
 
 #[test]
 fn fog_box_matches_reference() {
-    let o = check(
+    check_methods(
         "scenes/conformance/fog-box/scene.toml",
         "tests/data/conformance/fog-box/reference.exr",
         None,
         192,
-        20_000,
+        (0.0011, 0.01),
     );
-    o.assert_within("fog-box", 0.0011, 0.01);
 }
 
 #[test]
 fn glass_caustic_matches_reference() {
-    let o = check(
+    // The reference's 4x4-block noise outside the emitter is 1.8 %: its caustic outliers.
+    check_methods(
         "scenes/conformance/glass-caustic/scene.toml",
         "tests/data/conformance/glass-caustic/reference.exr",
         Some("tests/data/conformance/glass-caustic/emitter_mask.png"),
         192,
-        20_000,
+        (0.018, 0.02),
     );
-    // The reference's 4x4-block noise outside the emitter is 1.8 %: its caustic outliers.
-    o.assert_within("glass-caustic", 0.018, 0.02);
 }
 
 /// fog-near-light: a small sphere light 0.18 m above thin fog. The reference is this
@@ -192,15 +229,14 @@ fn glass_caustic_matches_reference() {
 /// under the light, where Mitsuba's shadow rays are blocked by the light's own sphere.
 #[test]
 fn fog_near_light_matches_reference() {
-    let o = check(
+    // Reference block noise 0.3 % (reference.json).
+    check_methods(
         "scenes/conformance/fog-near-light/scene.toml",
         "tests/data/conformance/fog-near-light/reference.exr",
         Some("tests/data/conformance/fog-near-light/emitter_mask.png"),
         192,
-        20_000,
+        (0.003, 0.01),
     );
-    // Reference block noise 0.3 % (reference.json).
-    o.assert_within("fog-near-light", 0.003, 0.01);
 }
 
 /// The whole-image error hides a local bias near a light: the mean over the rows where
@@ -212,7 +248,8 @@ fn fog_near_light_matches_reference() {
 fn fog_near_light_rows_under_the_light() {
     const ROWS: usize = 48 / BLOCK;
     let scene = "scenes/conformance/fog-near-light/scene.toml";
-    let r = quarter_renderer(scene, 1, 20_000, Mode::Adaptive);
+    // The pure method: there the light's 1/d^2 fluence reaches the view rays through beams.
+    let r = quarter_renderer(scene, 1, 20_000, Mode::Adaptive, Method::Ppb);
     let w = r.settings.width as usize;
     let mut session = Session::cpu(r);
     let skip = block_mask("tests/data/conformance/fog-near-light/emitter_mask.png");
@@ -249,28 +286,26 @@ fn fog_near_light_rows_under_the_light() {
 
 #[test]
 fn smoke_grid_matches_reference() {
-    let o = check(
+    // Reference block noise 0.1 % (reference.json).
+    check_methods(
         "scenes/conformance/smoke-grid/scene.toml",
         "tests/data/conformance/smoke-grid/reference.exr",
         None,
         96,
-        20_000,
+        (0.001, 0.01),
     );
-    // Reference block noise 0.1 % (reference.json).
-    o.assert_within("smoke-grid", 0.001, 0.01);
 }
 
 #[test]
 fn cloud_hg_matches_reference() {
-    let o = check(
+    // Reference block noise 0.1 % (reference.json).
+    check_methods(
         "scenes/conformance/cloud-hg/scene.toml",
         "tests/data/conformance/cloud-hg/reference.exr",
         None,
         96,
-        20_000,
+        (0.001, 0.01),
     );
-    // Reference block noise 0.1 % (reference.json).
-    o.assert_within("cloud-hg", 0.001, 0.01);
 }
 
 /// Switching the free-path sampler changes only the noise: adaptive and Woodcock renders
@@ -303,7 +338,14 @@ fn conformance_on_gpu() {
         let scene = format!("scenes/conformance/{name}/scene.toml");
         let reference = format!("tests/data/conformance/{name}/reference.exr");
         let mask = mask.map(|m| format!("tests/data/conformance/{name}/{m}"));
-        let Some(o) = check_on(&scene, &reference, mask.as_deref(), 48, 20_000, Device::Gpu) else {
+        let case = Case {
+            scene: &scene,
+            passes: 48,
+            paths: 20_000,
+            method: Method::Hybrid,
+            device: Device::Gpu,
+        };
+        let Some(o) = check_on(&case, &reference, mask.as_deref()) else {
             return;
         };
         o.assert_within(name, ref_noise, mean_tol);

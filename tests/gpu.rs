@@ -78,6 +78,25 @@ fn gpu_matches_cpu_on_smoke_grid() {
     }
 }
 
+/// A grid with tiles (the cloud's dense core), which the leaf table's slots name.
+#[test]
+fn gpu_matches_cpu_on_cloud_tiles() {
+    let scene = "scenes/conformance/cloud-hg/scene.toml";
+    let Some(p) = parity(scene, 96, 20_000, TrMode::Ratio, &[1, 7]) else {
+        return;
+    };
+    eprintln!(
+        "cloud-hg: {} evaluations, {} lit pixels, {} off, rel_l1 {:.2e}",
+        p.evaluations,
+        p.diff.lit_pixels,
+        p.diff.off_pixels,
+        p.diff.rel_l1()
+    );
+    assert!(p.evaluations > 50_000 && p.diff.lit_pixels > 1000);
+    assert!(p.diff.off_pixels * 1000 <= p.diff.lit_pixels);
+    assert!(p.diff.rel_l1() < 1e-5, "rel_l1 {}", p.diff.rel_l1());
+}
+
 /// Glass: camera segments after refraction and reflection, weighted by Fresnel.
 #[test]
 fn gpu_matches_cpu_on_glass_caustic() {

@@ -19,7 +19,7 @@ use ppb::output::{self, Image};
 use ppb::pass::{TracedPass, Tracer};
 use ppb::scene::toml::SceneFile;
 use ppb::session::{Flow, Session};
-use ppb::settings::RenderSettings;
+use ppb::settings::{Method, RenderSettings};
 use ppb::transport::freepath::Mode;
 use ppb::transport::transmittance::TrMode;
 use ppb::transport::Counters;
@@ -40,6 +40,10 @@ pub struct BenchArgs {
     /// Image size override, e.g. 128x128.
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Method of the runs: ppb (the default), the paper's pure method, reproduces its
+    /// Table 1; hybrid measures the renderer's default.
+    #[arg(long, value_enum, default_value = "ppb")]
+    pub method: Method,
 }
 
 impl BenchArgs {
@@ -48,6 +52,7 @@ impl BenchArgs {
         Overrides {
             size: self.size,
             paths: self.paths.clone(),
+            method: Some(self.method),
             ..Default::default()
         }
         .apply(&file.settings)
@@ -211,6 +216,10 @@ pub struct BenchTrArgs {
     /// region of the smoke).
     #[arg(long, default_value_t = 0.1)]
     pub media_depth: f32,
+    /// Method of the runs: ppb (the default), the paper's pure method, reproduces its
+    /// Figs. 11 and 12; hybrid measures the renderer's default.
+    #[arg(long, value_enum, default_value = "ppb")]
+    pub method: Method,
 }
 
 /// The five configurations of the paper's Figs. 11 and 12.
@@ -354,6 +363,7 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
         let over = Overrides {
             size: Some(args.size),
             paths: args.paths.clone(),
+            method: Some(args.method),
             ..Default::default()
         };
         base = over.apply(&base)?;

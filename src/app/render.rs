@@ -9,6 +9,7 @@ use ppb::gpu::beams::GpuStats;
 use ppb::output;
 use ppb::pass::{Timings, Tracer};
 use ppb::session::{Flow, Session};
+use ppb::settings::Method;
 use ppb::transport::Counters;
 
 use super::{Machine, OutputMeta, Overrides};
@@ -48,6 +49,7 @@ struct Stats {
     passes: u32,
     width: u32,
     height: u32,
+    method: Method,
     light_paths: usize,
     beam_r1: f32,
     photon_r1: f32,
@@ -162,6 +164,7 @@ fn write_stats(path: &Path, args: &RenderArgs, session: &Session, start: Instant
         passes: session.passes(),
         width: settings.width,
         height: settings.height,
+        method: settings.method,
         light_paths: settings.light_paths,
         beam_r1: t.beam_r1,
         photon_r1: t.photon_r1,

@@ -260,8 +260,8 @@ mod tests {
             let mut b = 0.0;
             for bm in &beams {
                 if let Some(c) = crossing(o, d, Vec3::from(bm.origin), Vec3::from(bm.dir)) {
-                    if c.dist < r && c.t >= 0.0 && c.t < 0.6 && c.s >= 0.0 && c.s < bm.length {
-                        b += kernel(c.dist, r) / c.sin_theta;
+                    if c.dist2 < r * r && c.t >= 0.0 && c.t < 0.6 && c.s >= 0.0 && c.s < bm.length {
+                        b += kernel(c.dist2, r) / c.sin2.sqrt();
                     }
                 }
             }

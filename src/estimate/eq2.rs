@@ -20,10 +20,11 @@ use crate::media::Media;
 use crate::scene::Rgb;
 use crate::transport::transmittance::SegmentTr;
 
-/// The normalized 1D kernel: 1/(2r) on the open interval |d| < r, so it integrates to 1
-/// over d and a crossing at distance exactly r counts nothing.
-pub fn kernel(d: f32, r: f32) -> f32 {
-    if d.abs() < r {
+/// The normalized 1D kernel of the squared distance d2 = d^2: 1/(2r) on the open interval
+/// |d| < r, so it integrates to 1 over d and a crossing at distance exactly r counts
+/// nothing. Squared, so that a candidate pair is rejected without a square root.
+pub fn kernel(d2: f32, r: f32) -> f32 {
+    if d2 < r * r {
         0.5 / r
     } else {
         0.0
@@ -36,8 +37,10 @@ pub struct Crossing {
     pub t: f32,
     /// Parameter along the beam.
     pub s: f32,
-    pub dist: f32,
-    pub sin_theta: f32,
+    /// Squared distance between the lines there.
+    pub dist2: f32,
+    /// sin^2 of the angle between them.
+    pub sin2: f32,
 }
 
 /// Where the lines o + t w and y + s psi (unit directions) come closest; None when they
@@ -53,24 +56,19 @@ pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
     let e = psi.dot(w0);
     let t = (b * e - d) / sin2;
     let s = (e - b * d) / sin2;
-    let dist = (w0 + w * t - psi * s).length();
-    Some(Crossing {
-        t,
-        s,
-        dist,
-        sin_theta: sin2.sqrt(),
-    })
+    let dist2 = (w0 + w * t - psi * s).length_squared();
+    Some(Crossing { t, s, dist2, sin2 })
 }
 
 /// Eq. 2 for the camera segment [t0, t1) of `ray` and the beam stretch `piece`
 /// ([s0, s1) along its beam), or None when the pair does not count.
 ///
 /// The edge rule, half-open everywhere: a crossing counts iff t0 <= t < t1, s0 <= s < s1
-/// and d < r. Half-open intervals partition: a segment cut into media spans, or a beam cut
+/// and d^2 < r^2. Half-open intervals partition: a segment cut into media spans, or a beam cut
 /// into BVH pieces, counts a crossing on a cut exactly once; a camera segment includes its
 /// start (the camera or the specular vertex it leaves from) and excludes its end (the
 /// surface); a beam likewise includes its origin and excludes the point where its free
-/// path ended. d < r is the support of [`kernel`] (a crossing that counts lies strictly
+/// path ended. d^2 < r^2 is the support of [`kernel`] (a crossing that counts lies strictly
 /// inside its piece's box grown by r, which the BVH query relies on).
 ///
 /// `in_scatter(x, cos)` is sigma_s(x) f(cos) and `tr(t)` the camera transmittance from
@@ -85,12 +83,12 @@ pub fn term(
 ) -> Option<Rgb> {
     let psi = Vec3::from(piece.dir);
     let c = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi)?;
-    let counts = c.dist < r && t0 <= c.t && c.t < t1 && piece.s0 <= c.s && c.s < piece.s1;
+    let counts = c.dist2 < r * r && t0 <= c.t && c.t < t1 && piece.s0 <= c.s && c.s < piece.s1;
     if !counts {
         return None;
     }
     let f = in_scatter(ray.at(c.t), psi.dot(-ray.d));
-    Some(f * Vec3::from(piece.power) * (kernel(c.dist, r) * tr(c.t) / c.sin_theta))
+    Some(f * Vec3::from(piece.power) * (kernel(c.dist2, r) * tr(c.t) / c.sin2.sqrt()))
 }
 
 /// The camera-transmittance factor of eq. 2: transmittance from the origin of a camera
@@ -246,7 +244,7 @@ mod tests {
         let n = 100_000;
         let h = 4.0 * r / n as f32;
         let integral: f32 = (0..n)
-            .map(|i| kernel(-2.0 * r + (i as f32 + 0.5) * h, r) * h)
+            .map(|i| kernel((-2.0 * r + (i as f32 + 0.5) * h).powi(2), r) * h)
             .sum();
         assert!((integral - 1.0).abs() < 1e-3);
     }
@@ -255,7 +253,7 @@ mod tests {
     fn crossing_of_perpendicular_lines() {
         let c = crossing(Vec3::ZERO, Vec3::X, Vec3::new(2.0, 0.3, -1.0), Vec3::Z).unwrap();
         assert!((c.t - 2.0).abs() < 1e-6 && (c.s - 1.0).abs() < 1e-6);
-        assert!((c.dist - 0.3).abs() < 1e-6 && (c.sin_theta - 1.0).abs() < 1e-6);
+        assert!((c.dist2 - 0.09).abs() < 1e-6 && (c.sin2 - 1.0).abs() < 1e-6);
     }
 
     /// The camera transmittance: the box's exact exp(-sigma_t * chord) times the grid

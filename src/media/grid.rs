@@ -2,7 +2,9 @@
 //!
 //! Sparse: values live in 8^3 leaves, found through a table of leaf slots over the bounding
 //! box of the leaves (one u32 per 512 voxels), so empty space costs 4 bytes per leaf slot
-//! and a lookup is two array reads. Constant regions (VDB tiles) are stored as boxes.
+//! and a lookup is two array reads. Constant regions (VDB tiles) are stored as boxes; the
+//! table's slots that a tile covers whole name it, so a lookup inside a tile (a cloud's
+//! dense core) is as cheap as one in a leaf.
 //! Values sit at voxel centres: voxel (i,j,k) is at `index_to_world * (i,j,k)` (the VDB
 //! convention); between voxels the field is trilinear; outside leaves and tiles it is
 //! `background`.
@@ -13,6 +15,16 @@ use std::collections::HashMap;
 pub const LEAF: i32 = 8;
 const LEAF_VOXELS: usize = 512;
 const EMPTY: u32 = u32::MAX;
+/// Table slots with this bit name a tile (index in the low bits), not a leaf.
+pub const TILE_SLOT: u32 = 1 << 31;
+
+/// What a leaf slot of the table holds.
+enum Slot<'a> {
+    Leaf(&'a Leaf),
+    Tile(f32),
+    /// No leaf, and no tile covers the whole slot: search the tiles.
+    Other,
+}
 
 #[derive(Clone, Debug)]
 pub struct Leaf {
@@ -126,6 +138,7 @@ impl GridBuilder {
             leaves.push(map.remove(&k).expect("key from map"));
             leaf_origins.push(k * LEAF);
         }
+        mark_tiles(&mut table, table_min, table_dim, &self.tiles);
         Grid {
             name: self.name,
             background: self.background,
@@ -141,14 +154,47 @@ impl GridBuilder {
     }
 }
 
+/// Marks the table's empty slots whose 8^3 voxels one tile covers whole. A voxel takes
+/// the value of the first tile containing it, so each slot goes to the first tile that
+/// touches it, and stays a search when that tile covers it only in part.
+fn mark_tiles(table: &mut [u32], min: IVec3, dim: IVec3, tiles: &[Tile]) {
+    for (k, t) in tiles.iter().enumerate().rev() {
+        let lo = (leaf_key(t.min) - min).max(IVec3::ZERO);
+        let hi = (leaf_key(t.max) - min).min(dim - 1);
+        for x in lo.x..=hi.x {
+            for y in lo.y..=hi.y {
+                for z in lo.z..=hi.z {
+                    let i = ((x * dim.y + y) * dim.z + z) as usize;
+                    if table[i] != EMPTY && table[i] & TILE_SLOT == 0 {
+                        continue;
+                    }
+                    let first = (IVec3::new(x, y, z) + min) * LEAF;
+                    let whole = first.cmpge(t.min).all() && (first + LEAF - 1).cmple(t.max).all();
+                    table[i] = if whole { TILE_SLOT | k as u32 } else { EMPTY };
+                }
+            }
+        }
+    }
+}
+
 impl Grid {
-    fn leaf_at(&self, ijk: IVec3) -> Option<&Leaf> {
+    fn slot(&self, ijk: IVec3) -> Slot<'_> {
         let d = leaf_key(ijk) - self.table_min;
         if d.cmplt(IVec3::ZERO).any() || d.cmpge(self.table_dim).any() {
-            return None;
+            return Slot::Other;
         }
-        let slot = self.table[((d.x * self.table_dim.y + d.y) * self.table_dim.z + d.z) as usize];
-        (slot != EMPTY).then(|| &self.leaves[slot as usize])
+        match self.table[((d.x * self.table_dim.y + d.y) * self.table_dim.z + d.z) as usize] {
+            EMPTY => Slot::Other,
+            s if s & TILE_SLOT != 0 => Slot::Tile(self.tiles[(s & !TILE_SLOT) as usize].value),
+            s => Slot::Leaf(&self.leaves[s as usize]),
+        }
+    }
+
+    fn leaf_at(&self, ijk: IVec3) -> Option<&Leaf> {
+        match self.slot(ijk) {
+            Slot::Leaf(l) => Some(l),
+            _ => None,
+        }
     }
 
     fn tile_at(&self, ijk: IVec3) -> Option<&Tile> {
@@ -159,10 +205,11 @@ impl Grid {
 
     /// Value of voxel `ijk` (background outside leaves and tiles).
     pub fn value(&self, ijk: IVec3) -> f32 {
-        if let Some(l) = self.leaf_at(ijk) {
-            return l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)];
+        match self.slot(ijk) {
+            Slot::Leaf(l) => l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)],
+            Slot::Tile(v) => v,
+            Slot::Other => self.tile_at(ijk).map_or(self.background, |t| t.value),
         }
-        self.tile_at(ijk).map_or(self.background, |t| t.value)
     }
 
     /// Whether voxel `ijk` is active.
@@ -180,10 +227,14 @@ impl Grid {
         let f = p.floor();
         let t = (p - f).as_vec3();
         let i = f.as_ivec3();
-        // Fast path: all 8 corners inside one leaf (343 of 512 cells).
+        // Fast path: all 8 corners inside one leaf slot (343 of 512 cells).
         let local = i - leaf_key(i) * LEAF;
         if local.cmplt(IVec3::splat(LEAF - 1)).all() {
-            if let Some(l) = self.leaf_at(i) {
+            let slot = self.slot(i);
+            if let Slot::Tile(v) = slot {
+                return v;
+            }
+            if let Slot::Leaf(l) = slot {
                 let o = leaf_offset(local);
                 let v = |d: usize| l.values[o + d];
                 let (dx, dy, dz) = ((LEAF * LEAF) as usize, LEAF as usize, 1usize);
@@ -209,7 +260,8 @@ impl Grid {
         self.sample_index(self.world_to_index.transform_point3(p.as_dvec3()))
     }
 
-    /// The leaf-slot table (`u32::MAX` = no leaf; else an index into [`Self::leaves`]
+    /// The leaf-slot table (`u32::MAX` = no leaf and no tile covering the slot whole;
+    /// [`TILE_SLOT`] | k = inside tile k; else an index into [`Self::leaves`]
     /// order), its minimum leaf key and its size in leaves, x-major.
     pub fn leaf_table(&self) -> (&[u32], IVec3, IVec3) {
         (&self.table, self.table_min, self.table_dim)
@@ -325,5 +377,50 @@ mod tests {
         assert_eq!(g.active_voxels(), 2 + 512);
         assert!((g.sample_index(DVec3::new(-0.25, 0.0, 0.0)) - 2.5).abs() < 1e-6);
         assert!((g.sample_index(DVec3::new(0.0, 0.5, 0.0)) - 1.5).abs() < 1e-6);
+    }
+
+    /// Tiles inside the table's span (whole slots, a part of a slot, overlapping ones)
+    /// give every voxel the value of the first tile containing it, as a search would, and
+    /// trilinear samples inside a tile are its value.
+    #[test]
+    fn tile_slots_keep_the_first_tile_rule() {
+        let mut b = GridBuilder::new("density", 0.5, DAffine3::IDENTITY);
+        b.set(IVec3::new(0, 0, 0), 1.0, true);
+        b.set(IVec3::new(40, 40, 40), 1.0, true);
+        let tiles = [
+            (IVec3::new(8, 8, 8), IVec3::new(23, 15, 15), 2.0),
+            (IVec3::new(16, 8, 8), IVec3::new(31, 31, 31), 3.0),
+            (IVec3::new(3, 3, 3), IVec3::new(12, 12, 12), 4.0),
+            (IVec3::new(24, 24, 24), IVec3::new(31, 31, 31), 5.0),
+        ];
+        for (min, max, value) in tiles {
+            b.tile(Tile {
+                min,
+                max,
+                value,
+                active: true,
+            });
+        }
+        let g = b.finish();
+        let search = |ijk: IVec3| {
+            if let Some(l) = g.leaf_at(ijk) {
+                return l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)];
+            }
+            g.tile_at(ijk).map_or(g.background, |t| t.value)
+        };
+        let mut marked = 0;
+        for x in -2..50 {
+            for y in -2..50 {
+                for z in -2..50 {
+                    let ijk = IVec3::new(x, y, z);
+                    assert_eq!(g.value(ijk), search(ijk), "{ijk}");
+                    marked += matches!(g.slot(ijk), Slot::Tile(_)) as u32;
+                }
+            }
+        }
+        assert!(marked > 0, "no slot names a tile");
+        assert_eq!(g.value(IVec3::new(20, 10, 10)), 2.0);
+        assert_eq!(g.value(IVec3::new(26, 26, 26)), 3.0);
+        assert_eq!(g.sample_index(DVec3::new(17.3, 9.5, 10.2)), 2.0);
     }
 }

@@ -12,8 +12,8 @@ use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc};
 use crate::settings::{Radius, RenderSettings};
-use crate::transport::freepath::Mode;
-use crate::transport::transmittance::{TrMode, MAX_TR_BLOCK, MAX_TR_SAMPLES};
+use crate::transport::transmittance::{MAX_TR_BLOCK, MAX_TR_SAMPLES};
+use clap::ValueEnum;
 use glam::DAffine3;
 
 #[derive(Deserialize, Default)]
@@ -44,6 +44,7 @@ struct FileRender {
     /// The old name of `light_paths` (it counts light paths, not beams).
     beams_per_pass: Option<usize>,
     alpha: Option<f32>,
+    photon_alpha: Option<f32>,
     beam_radius: Option<FileRadius>,
     photon_radius: Option<FileRadius>,
     seed: Option<u64>,
@@ -52,6 +53,7 @@ struct FileRender {
     transmittance: Option<String>,
     tr_block: Option<usize>,
     free_path: Option<String>,
+    method: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -191,6 +193,25 @@ struct Check<'a> {
 impl Check<'_> {
     fn err(&self, field: &str, msg: String) -> Error {
         Error::field(self.path, field, msg)
+    }
+
+    /// One of `T`'s values by its command-line name, or `default` when absent.
+    fn word<T: ValueEnum>(&self, field: &str, v: Option<&str>, default: T) -> Result<T> {
+        let Some(w) = v else { return Ok(default) };
+        T::from_str(w, false).map_err(|_| {
+            let names: Vec<String> = T::value_variants()
+                .iter()
+                .filter_map(|v| v.to_possible_value())
+                .map(|p| p.get_name().to_string())
+                .collect();
+            let (last, rest) = names.split_last().expect("an enum has values");
+            let list = if rest.is_empty() {
+                last.clone()
+            } else {
+                format!("{} or {last}", rest.join(", "))
+            };
+            self.err(field, format!("expected {list}, got \"{w}\""))
+        })
     }
     fn finite3(&self, field: &str, v: [f32; 3]) -> Result<Vec3> {
         if v.iter().all(|x| x.is_finite()) {
@@ -399,35 +420,20 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         passes: r.passes.unwrap_or(d.passes),
         light_paths: r.light_paths.or(r.beams_per_pass).unwrap_or(d.light_paths),
         alpha: r.alpha.unwrap_or(d.alpha),
+        photon_alpha: r.photon_alpha.unwrap_or(d.photon_alpha),
         beam_radius: radius("render.beam_radius", &r.beam_radius)?,
         photon_radius: radius("render.photon_radius", &r.photon_radius)?,
         seed: r.seed.unwrap_or(d.seed),
         exposure: r.exposure.unwrap_or(d.exposure),
         tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
         tr_block: r.tr_block.unwrap_or(d.tr_block),
-        tr_mode: match r.transmittance.as_deref() {
-            None => d.tr_mode,
-            Some("random") => TrMode::Random,
-            Some("stratified") => TrMode::Stratified,
-            Some("ratio") => TrMode::Ratio,
-            Some(other) => {
-                return Err(ck.err(
-                    "render.transmittance",
-                    format!("expected random, stratified or ratio, got \"{other}\""),
-                ))
-            }
-        },
-        free_path: match r.free_path.as_deref() {
-            None => d.free_path,
-            Some("adaptive") => Mode::Adaptive,
-            Some("woodcock") => Mode::Woodcock,
-            Some(other) => {
-                return Err(ck.err(
-                    "render.free_path",
-                    format!("expected adaptive or woodcock, got \"{other}\""),
-                ))
-            }
-        },
+        tr_mode: ck.word(
+            "render.transmittance",
+            r.transmittance.as_deref(),
+            d.tr_mode,
+        )?,
+        free_path: ck.word("render.free_path", r.free_path.as_deref(), d.free_path)?,
+        method: ck.word("render.method", r.method.as_deref(), d.method)?,
         ..d
     };
     if s.tr_block == 0
@@ -456,11 +462,13 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
     if s.light_paths == 0 {
         return Err(ck.err("render.light_paths", "expected at least 1".into()));
     }
-    if !(s.alpha > 0.0 && s.alpha < 1.0) {
-        return Err(ck.err(
-            "render.alpha",
-            format!("expected a number in (0, 1), got {}", s.alpha),
-        ));
+    for (field, a) in [
+        ("render.alpha", s.alpha),
+        ("render.photon_alpha", s.photon_alpha),
+    ] {
+        if !(a > 0.0 && a < 1.0) {
+            return Err(ck.err(field, format!("expected a number in (0, 1), got {a}")));
+        }
     }
     if !s.exposure.is_finite() {
         return Err(ck.err("render.exposure", "expected a finite number".into()));

@@ -6,11 +6,13 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::direct::Direct;
 use super::freepath::FreePath;
 use super::light::enters_glass;
 use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode, MAX_TR_BLOCK};
 use super::{timed, Counters};
 use crate::bsdf;
+use crate::estimate::eq2::camera_tr;
 use crate::estimate::photons::PhotonMap;
 use crate::geometry::{Geometry, Ray, Surface, EPS};
 use crate::media::Media;
@@ -177,6 +179,8 @@ pub struct CameraTracer<'a> {
     pub tr_samples: usize,
     pub tr_mode: TrMode,
     pub photons: &'a PhotonMap,
+    /// Next-event estimation of direct light (the hybrid method), or None (pure PPB).
+    pub direct: Option<Direct<'a>>,
 }
 
 impl CameraTracer<'_> {
@@ -310,10 +314,15 @@ impl CameraTracer<'_> {
                 None => (None, None),
             };
             let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat);
+            let in_media = !st.in_glass && !self.media.spans(&ray, t_surf).is_empty();
+            if let (Some(d), true) = (&self.direct, in_media) {
+                let tr = |t| camera_tr(self.media, &ray, &gtr, t);
+                l += st.beta * d.along(&ray, t_surf, tr, rng, c);
+            }
             if let Some(p) = primary {
                 p.t_surf = t_surf;
                 p.tr = gtr.clone();
-            } else if !st.in_glass && !self.media.spans(&ray, t_surf).is_empty() {
+            } else if in_media {
                 out.segments.push(Secondary {
                     pixel: out.pixel,
                     ray,
@@ -336,10 +345,13 @@ impl CameraTracer<'_> {
             };
             if let Material::Lambert { reflectance } = material {
                 let n = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
-                l += st.beta
-                    * self
-                        .photons
-                        .radiance(h.p, n, reflectance, &mut c.photon_lookups);
+                let mut lo = self
+                    .photons
+                    .radiance(h.p, n, reflectance, &mut c.photon_lookups);
+                if let Some(d) = &self.direct {
+                    lo += d.at_surface(h.p, n, reflectance, rng, c);
+                }
+                l += st.beta * lo;
                 break;
             }
             st.depth += 1;

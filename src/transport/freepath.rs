@@ -152,6 +152,32 @@ impl FreePath<'_> {
             c.density_lookups += lookups;
         }
     }
+
+    /// Ratio tracking through the grids up to `tmax`: the product over tentative
+    /// collisions of (1 - sigma_t(x) / majorant), an unbiased estimate of the grids'
+    /// transmittance (shadow rays; stops at the first zero factor).
+    pub fn ratio_transmittance(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> f32 {
+        let mut tr = 1.0f32;
+        for g in &self.media.grids {
+            let mut lookups = 0;
+            self.track(g, ray, tmax, rng, c, &mut |t, b, _| {
+                lookups += 1;
+                tr *= (1.0 - g.sigma_t(ray.at(t)) / b.majorant).max(0.0);
+                tr > 0.0
+            });
+            c.density_lookups += lookups;
+            if tr <= 0.0 {
+                break;
+            }
+        }
+        tr
+    }
 }
 
 /// Which free-path sampler light paths and camera transmittance use.

@@ -3,6 +3,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::direct::spot_falloff;
 use super::freepath::FreePath;
 use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
@@ -61,16 +62,21 @@ impl LightSampler {
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
+    /// A light chosen by power from `u` in [0, 1), with the probability of choosing it.
+    pub fn pick(&self, u: f32) -> Option<(&Light, f32)> {
+        let idx = self.cdf.iter().position(|&c| u < c)?;
+        let prob = self.cdf[idx] - if idx > 0 { self.cdf[idx - 1] } else { 0.0 };
+        Some((&self.lights[idx], prob))
+    }
+
     /// Picks a light by power and samples a photon from it, carrying power / pdf.
     pub fn emit(&self, rng: &mut Rng) -> Option<Emission> {
-        let u = rng.f32();
-        let idx = self.cdf.iter().position(|&c| u < c)?;
-        let pick = self.cdf[idx] - if idx > 0 { self.cdf[idx - 1] } else { 0.0 };
+        let (light, prob) = self.pick(rng.f32())?;
         let u1 = rng.vec2();
         let u2 = rng.vec2();
-        let e = self.emit_from(&self.lights[idx], u1, u2);
+        let e = self.emit_from(light, u1, u2);
         Some(Emission {
-            power: e.power / pick,
+            power: e.power / prob,
             ..e
         })
     }
@@ -91,10 +97,8 @@ impl LightSampler {
                 outer_deg,
             } => {
                 let cos_outer = outer_deg.to_radians().cos();
-                let cos_inner = inner_deg.to_radians().cos();
                 let dir = uniform_cone(direction, cos_outer, u1);
-                let c = dir.dot(direction);
-                let falloff = ((c - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0);
+                let falloff = spot_falloff(direction, inner_deg, outer_deg, dir);
                 let solid_angle = 2.0 * std::f32::consts::PI * (1.0 - cos_outer);
                 Emission {
                     origin: position,
@@ -134,6 +138,10 @@ pub struct LightTracer<'a> {
     /// How far (m) a beam reaches past each medium boundary it crosses: the pass's beam
     /// radius. See [`LightTracer::store_beams`].
     pub beam_margin: f32,
+    /// Leave out what next-event estimation covers (the hybrid method): the beams of a
+    /// path's first segment and the photons it ends in, before any scattering or
+    /// specular event.
+    pub skip_direct: bool,
 }
 
 /// One pass worth of light-path records.
@@ -184,6 +192,8 @@ impl LightTracer<'_> {
         let mut power = e.power * scale;
         // Inside a dielectric the path sees no medium (glass interiors are clear).
         let mut in_glass = false;
+        // Whether the path still runs straight from the light (what NEE covers).
+        let mut direct = self.skip_direct;
         for _ in 0..MAX_DEPTH {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
@@ -199,7 +209,7 @@ impl LightTracer<'_> {
                 c
             };
             let t_end = collision.unwrap_or(t_surf);
-            if !in_glass {
+            if !in_glass && !direct {
                 self.store_beams(&ray, t_end, power, out);
             }
             if let Some(t) = collision {
@@ -212,6 +222,7 @@ impl LightTracer<'_> {
                     return;
                 }
                 power *= albedo / q;
+                direct = false;
                 let (u1, u2) = (rng.f32(), rng.f32());
                 ray = Ray::new(p, phase.sample(ray.d, u1, u2));
                 continue;
@@ -221,10 +232,11 @@ impl LightTracer<'_> {
                 return;
             };
             let side = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
-            if let Material::Lambert { .. } = material {
+            if let (Material::Lambert { .. }, false) = (material, direct) {
                 out.photons.push(Photon::new(h.p, side, power));
                 out.counters.photons += 1;
             }
+            direct = false;
             let (u, u2) = (rng.f32(), rng.vec2());
             let Some(b) = bsdf::sample(&material, ray.d, h.ng, h.ns, u, u2) else {
                 return;

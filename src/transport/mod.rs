@@ -3,6 +3,7 @@
 //! [`Beam`] and [`Photon`] are `#[repr(C)]` + `Pod`: the one definition that CPU code and
 //! GPU buffers share.
 pub mod camera;
+pub mod direct;
 pub mod freepath;
 pub mod light;
 pub mod transmittance;
@@ -82,6 +83,8 @@ pub struct Counters {
     pub camera_rays: u64,
     pub beam_evaluations: u64,
     pub photon_lookups: u64,
+    /// Shadow rays of next-event estimation.
+    pub shadow_rays: u64,
     /// Thread-seconds spent sampling free paths (light and camera paths).
     pub free_path_seconds: f64,
     /// Thread-seconds spent on camera-segment transmittance.
@@ -103,6 +106,7 @@ impl Counters {
         self.camera_rays += o.camera_rays;
         self.beam_evaluations += o.beam_evaluations;
         self.photon_lookups += o.photon_lookups;
+        self.shadow_rays += o.shadow_rays;
         self.free_path_seconds += o.free_path_seconds;
         self.transmittance_seconds += o.transmittance_seconds;
     }

@@ -1,0 +1,452 @@
+//! Direct light by next-event estimation, the first half of the hybrid method: at diffuse
+//! camera hits and along camera segments in media, a light is sampled and a shadow ray
+//! traced to it, weighted by the media's transmittance along it (exact through the
+//! homogeneous media, ratio tracking over the grids' majorant segments). The light tracer
+//! then leaves out what this covers (a light path's first, unscattered and unrefracted
+//! segment and the photons it ends in), so both halves add up to the same radiance as the
+//! pure method. Surfaces block shadow rays, dielectrics included: light through glass
+//! stays with the photons and beams.
+use glam::{Vec2, Vec3};
+use smallvec::SmallVec;
+use std::f32::consts::PI;
+
+use super::freepath::FreePath;
+use super::light::LightSampler;
+use super::Counters;
+use crate::geometry::{Geometry, Ray, EPS};
+use crate::media::Media;
+use crate::sampling::{uniform_cone, Rng};
+use crate::scene::{Light, Rgb};
+
+/// A light seen from a point: the unit direction towards the sampled point of the light,
+/// its distance (infinite for a directional light), and the radiance arriving along it
+/// divided by the sample's solid-angle density (for delta lights: intensity / d^2, or
+/// irradiance), before any transmittance.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    pub dir: Vec3,
+    pub dist: f32,
+    pub value: Rgb,
+}
+
+/// Samples `light` as seen from `x` (None where it sends nothing to `x`).
+pub fn sample_light(light: &Light, x: Vec3, u: Vec2) -> Option<LightSample> {
+    match *light {
+        Light::Point {
+            position,
+            intensity,
+        } => towards(position, x, intensity),
+        Light::Spot {
+            position,
+            direction,
+            intensity,
+            inner_deg,
+            outer_deg,
+        } => {
+            let s = towards(position, x, intensity)?;
+            let falloff = spot_falloff(direction, inner_deg, outer_deg, -s.dir);
+            (falloff > 0.0).then(|| LightSample {
+                value: s.value * falloff,
+                ..s
+            })
+        }
+        Light::Directional {
+            direction,
+            irradiance,
+        } => Some(LightSample {
+            dir: -direction,
+            dist: f32::INFINITY,
+            value: irradiance,
+        }),
+        Light::Sphere {
+            center,
+            radius,
+            radiance,
+        } => sphere(center, radius, radiance, x, u),
+    }
+}
+
+/// Where equiangular sampling should aim for `light` (None for a directional light).
+pub fn anchor(light: &Light) -> Option<Vec3> {
+    match *light {
+        Light::Point { position, .. } | Light::Spot { position, .. } => Some(position),
+        Light::Sphere { center, .. } => Some(center),
+        Light::Directional { .. } => None,
+    }
+}
+
+/// Spot falloff along emission direction `w`: full inside `inner_deg`, linear in cos to
+/// zero at `outer_deg` (what the light tracer emits).
+pub fn spot_falloff(axis: Vec3, inner_deg: f32, outer_deg: f32, w: Vec3) -> f32 {
+    let cos_outer = outer_deg.to_radians().cos();
+    let cos_inner = inner_deg.to_radians().cos();
+    ((w.dot(axis) - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0)
+}
+
+fn towards(position: Vec3, x: Vec3, intensity: Rgb) -> Option<LightSample> {
+    let v = position - x;
+    let d2 = v.length_squared();
+    (d2 > 0.0).then(|| {
+        let dist = d2.sqrt();
+        LightSample {
+            dir: v / dist,
+            dist,
+            value: intensity / d2,
+        }
+    })
+}
+
+/// Uniform direction in the cone the sphere subtends from `x`, to the near side.
+fn sphere(center: Vec3, radius: f32, radiance: Rgb, x: Vec3, u: Vec2) -> Option<LightSample> {
+    let v = center - x;
+    let d2 = v.length_squared();
+    let r2 = radius * radius;
+    if d2 <= r2 {
+        return None;
+    }
+    let d = d2.sqrt();
+    let axis = v / d;
+    let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
+    let dir = uniform_cone(axis, cos_max, u);
+    // Distance to the sphere along dir (the nearer root; clamped at the tangent).
+    let b = dir.dot(v);
+    let dist = b - (b * b - (d2 - r2)).max(0.0).sqrt();
+    let solid_angle = 2.0 * PI * (1.0 - cos_max);
+    Some(LightSample {
+        dir,
+        dist,
+        value: radiance * solid_angle,
+    })
+}
+
+/// Equiangular sampling (Kulla and Fajardo 2012) of t in [a, b] along `ray` for a light at
+/// `c`: density proportional to 1 / distance^2 to `c`. Returns (t, pdf).
+pub fn equiangular(ray: &Ray, c: Vec3, a: f32, b: f32, u: f32) -> (f32, f32) {
+    let delta = (c - ray.o).dot(ray.d);
+    let d = (c - ray.at(delta)).length().max(1e-6 * (1.0 + delta.abs()));
+    let theta_a = ((a - delta) / d).atan();
+    let theta_b = ((b - delta) / d).atan();
+    let t = (delta + d * (theta_a + u * (theta_b - theta_a)).tan()).clamp(a, b);
+    let pdf = d / ((theta_b - theta_a) * (d * d + (t - delta) * (t - delta)));
+    (t, pdf)
+}
+
+/// A piecewise-constant rate along a ray: (t0, t1, rate), sorted, disjoint.
+type Rates = SmallVec<[(f32, f32, f32); 16]>;
+
+/// Samples t in [0, tmax) along the media's majorant (exact sigma_t of the homogeneous
+/// media plus each grid's majorant segments), without density lookups: half the samples
+/// follow the majorant's free-path density rate(t) exp(-int_0^t rate) conditioned on the
+/// segment (close to the transmittance where the majorant is tight), half the density
+/// proportional to rate(t) alone, which bounds the weight where the majorant is loose
+/// (Woodcock's global majorant over sparse smoke). Both invert the same cumulative majorant
+/// depth. Returns (t, pdf of the mixture); None where the rate is zero throughout.
+fn sample_by_majorant(fp: &FreePath, ray: &Ray, tmax: f32, u: f32) -> Option<(f32, f32)> {
+    let rates = majorant_rates(fp, ray, tmax);
+    let total: f32 = rates.iter().map(|&(a, b, k)| (b - a) * k).sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let norm = -(-total).exp_m1();
+    let target = if u < 0.5 {
+        -(-2.0 * u * norm).ln_1p()
+    } else {
+        (2.0 * u - 1.0) * total
+    };
+    let mut before = 0.0;
+    for &(a, b, k) in &rates {
+        let depth = (b - a) * k;
+        if target - before < depth {
+            let t = (a + (target - before) / k).min(b);
+            return Some((t, 0.5 * k * ((-target).exp() / norm + 1.0 / total)));
+        }
+        before += depth;
+    }
+    None
+}
+
+/// The media's majorant along the ray as disjoint constant pieces: a sweep over the
+/// homogeneous pieces and every grid's majorant segments (each list sorted and disjoint).
+fn majorant_rates(fp: &FreePath, ray: &Ray, tmax: f32) -> Rates {
+    let mut events: SmallVec<[(f32, f32); 32]> = SmallVec::new();
+    for p in fp.media.pieces(ray, tmax).iter() {
+        events.extend([(p.t0, p.sigma_t), (p.t1, -p.sigma_t)]);
+    }
+    for g in &fp.media.grids {
+        g.majorants(ray, tmax, fp.mode, |b, t0, t1| {
+            if b.majorant > 0.0 && t1 > t0 {
+                events.extend([(t0, b.majorant), (t1, -b.majorant)]);
+            }
+            true
+        });
+    }
+    events.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out = Rates::new();
+    let mut rate = 0.0f32;
+    for w in 0..events.len() {
+        rate += events[w].1;
+        let t0 = events[w].0;
+        let t1 = events.get(w + 1).map_or(t0, |e| e.0);
+        if t1 > t0 && rate > 1e-6 {
+            out.push((t0, t1, rate));
+        }
+    }
+    out
+}
+
+/// Next-event estimation for camera paths.
+pub struct Direct<'a> {
+    pub lights: &'a LightSampler,
+    pub geometry: &'a Geometry,
+    pub free_path: FreePath<'a>,
+}
+
+impl Direct<'_> {
+    fn media(&self) -> &Media {
+        self.free_path.media
+    }
+
+    /// Transmittance from `x` along `dir` over `dist` (infinite: out of the scene), an
+    /// unbiased estimate: 0 if a surface is in the way, else the homogeneous media's
+    /// exp(-tau) times a ratio-tracking estimate through the grids.
+    pub fn shadow(&self, x: Vec3, dir: Vec3, dist: f32, rng: &mut Rng, c: &mut Counters) -> f32 {
+        let ray = Ray::new(x, dir);
+        // Stop short of a sphere light's own surface.
+        let tmax = if dist.is_finite() {
+            dist * (1.0 - 1e-4)
+        } else {
+            f32::INFINITY
+        };
+        c.shadow_rays += 1;
+        if self.geometry.intersect(&ray, tmax).is_some() {
+            return 0.0;
+        }
+        let tr = (-self.media().optical_depth(&ray, 0.0, tmax)).exp();
+        if tr <= 0.0 || !self.media().crosses_grids(&ray, tmax) {
+            return tr;
+        }
+        tr * self.free_path.ratio_transmittance(&ray, tmax, rng, c)
+    }
+
+    /// Direct radiance reflected at a Lambert point `p` (normal `n` on the viewer's side,
+    /// reflectance `rho`) from one light sample.
+    pub fn at_surface(&self, p: Vec3, n: Vec3, rho: Rgb, rng: &mut Rng, c: &mut Counters) -> Rgb {
+        let Some((light, prob)) = self.lights.pick(rng.f32()) else {
+            return Rgb::ZERO;
+        };
+        let origin = p + n * EPS;
+        let Some(s) = sample_light(light, origin, rng.vec2()) else {
+            return Rgb::ZERO;
+        };
+        let cos = n.dot(s.dir);
+        if cos <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let tr = self.shadow(origin, s.dir, s.dist, rng, c);
+        rho / PI * s.value * (cos * tr / prob)
+    }
+
+    /// Single-scattered direct light along the camera segment [0, t_surf) of `ray`: one
+    /// light picked by power, one distance per media span by equiangular sampling towards
+    /// it (one along the whole segment by the majorant for a directional light), times
+    /// the camera transmittance `cam_tr(t)` from the ray origin.
+    pub fn along(
+        &self,
+        ray: &Ray,
+        t_surf: f32,
+        cam_tr: impl Fn(f32) -> f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> Rgb {
+        let Some((light, prob)) = self.lights.pick(rng.f32()) else {
+            return Rgb::ZERO;
+        };
+        let mut l = Rgb::ZERO;
+        match anchor(light) {
+            Some(at) => {
+                for (a, b) in self.media().spans(ray, t_surf) {
+                    let (t, pdf) = equiangular(ray, at, a, b, rng.f32());
+                    l += self.scattered(ray, t, light, &cam_tr, rng, c) / pdf;
+                }
+            }
+            None => {
+                if let Some((t, pdf)) = sample_by_majorant(&self.free_path, ray, t_surf, rng.f32())
+                {
+                    l += self.scattered(ray, t, light, &cam_tr, rng, c) / pdf;
+                }
+            }
+        }
+        l / prob
+    }
+
+    /// sigma_s f times the light's shadowed radiance at distance t along the camera ray,
+    /// times the camera transmittance there.
+    fn scattered(
+        &self,
+        ray: &Ray,
+        t: f32,
+        light: &Light,
+        cam_tr: &impl Fn(f32) -> f32,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> Rgb {
+        let x = ray.at(t);
+        let Some(s) = sample_light(light, x, rng.vec2()) else {
+            return Rgb::ZERO;
+        };
+        // Light travels along -dir, and on towards the camera along -ray.d.
+        let f = self.media().in_scatter(x, s.dir.dot(ray.d));
+        if f.max_element() <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let tr = cam_tr(t);
+        if tr <= 0.0 {
+            return Rgb::ZERO;
+        }
+        f * s.value * (tr * self.shadow(x, s.dir, s.dist, rng, c))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::media::{MediumDesc, Phase};
+    use crate::transport::freepath::Mode;
+
+    /// Equiangular samples weighted by 1/pdf integrate 1/(D^2 + s^2) exactly: the
+    /// estimator has zero variance for that integrand.
+    #[test]
+    fn equiangular_pdf_is_normalised() {
+        let ray = Ray::new(Vec3::ZERO, Vec3::X);
+        let c = Vec3::new(1.3, 0.4, 0.0);
+        let (a, b) = (0.2, 3.0);
+        let exact = ((b - 1.3f32) / 0.4).atan() / 0.4 - ((a - 1.3f32) / 0.4).atan() / 0.4;
+        for k in 0..32 {
+            let (t, pdf) = equiangular(&ray, c, a, b, (k as f32 + 0.5) / 32.0);
+            assert!((a..=b).contains(&t));
+            let f = 1.0 / (ray.at(t) - c).length_squared();
+            assert!((f / pdf / exact - 1.0).abs() < 1e-4, "{t}: {}", f / pdf);
+        }
+    }
+
+    /// Majorant sampling across two overlapping homogeneous boxes (exact sigma_t): the
+    /// inverse CDF at u lands where its half's CDF is 2u (the conditioned free-path CDF
+    /// (1 - exp(-tau(t))) / (1 - exp(-tau(tmax)))) or 2u - 1 (tau(t) / tau(tmax)), and the
+    /// pdf it returns is the mixture's, sigma(t) (exp(-tau(t)) / norm + 1 / tau(tmax)) / 2.
+    #[test]
+    fn majorant_sampling_density() {
+        let desc = |lo: Vec3, hi: Vec3, s: f32| MediumDesc {
+            bounds: [lo, hi],
+            sigma_t: s,
+            albedo: Vec3::ONE,
+            phase: Phase::ISOTROPIC,
+        };
+        let media = Media::new(vec![
+            desc(Vec3::splat(-1.0), Vec3::splat(1.0), 0.7),
+            desc(Vec3::new(0.0, -1.0, -1.0), Vec3::new(2.0, 1.0, 1.0), 1.3),
+        ]);
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Woodcock,
+        };
+        let ray = Ray::new(Vec3::new(-2.0, 0.1, 0.2), Vec3::X);
+        let tmax = 5.0;
+        let norm = 1.0 - (-media.optical_depth(&ray, 0.0, tmax)).exp();
+        let n = 4096;
+        for k in 0..n {
+            let u = (k as f32 + 0.5) / n as f32;
+            let (t, pdf) =
+                sample_by_majorant(&fp, &ray, tmax, u).expect("the ray crosses the media");
+            let tau = media.optical_depth(&ray, 0.0, t);
+            let total = media.optical_depth(&ray, 0.0, tmax);
+            let expect = 0.5 * media.sigma_t(ray.at(t)) * ((-tau).exp() / norm + 1.0 / total);
+            assert!(
+                (pdf / expect - 1.0).abs() < 1e-3,
+                "t {t}: {pdf} vs {expect}"
+            );
+            let (cdf, half) = if u < 0.5 {
+                ((1.0 - (-tau).exp()) / norm, 2.0 * u)
+            } else {
+                (tau / total, 2.0 * u - 1.0)
+            };
+            assert!((cdf - half).abs() < 1e-4, "t {t}: cdf {cdf} vs {half}");
+        }
+    }
+
+    /// Shadow-ray transmittance through a grid (ratio tracking over the octree's
+    /// majorants, both free-path modes) and a homogeneous box: its mean over independent
+    /// estimates matches exp(-optical depth) by quadrature within 4 standard errors, and
+    /// the test resolves 1 %.
+    #[test]
+    fn shadow_transmittance_is_unbiased() {
+        use crate::geometry::Geometry;
+        use crate::media::{grid::GridBuilder, GridMedium, Heterogeneous};
+        use crate::scene::Scene;
+        use glam::{DAffine3, DVec3, IVec3};
+        use std::sync::Arc;
+
+        let xf = DAffine3::from_scale(DVec3::splat(0.1));
+        let mut b = GridBuilder::new("density", 0.0, xf);
+        for i in 0..16 {
+            for j in 0..16 {
+                for k in 0..16 {
+                    let v = ((i * 7 + j * 3 + k * 5) % 11) as f32 / 10.0;
+                    b.set(IVec3::new(i, j, k), v * v, true);
+                }
+            }
+        }
+        let field = GridMedium::new(
+            Arc::new(b.finish()),
+            DAffine3::IDENTITY,
+            3.0,
+            Vec3::ONE,
+            Phase::ISOTROPIC,
+            "test".into(),
+            [0; 32],
+        );
+        let fog = MediumDesc {
+            bounds: [Vec3::splat(0.5), Vec3::splat(1.2)],
+            sigma_t: 0.4,
+            albedo: Vec3::ONE,
+            phase: Phase::ISOTROPIC,
+        };
+        let media = Media::with_grids(vec![fog], vec![Heterogeneous::build(field, 4)]);
+        let geometry = Geometry::new(&Scene::default()).expect("no surfaces");
+        let lights = LightSampler::new(&[], [Vec3::ZERO, Vec3::ONE]);
+        let x = Vec3::new(-0.2, 0.3, 0.1);
+        let dir = Vec3::new(1.0, 0.6, 0.8).normalize();
+        let dist = 2.5;
+        let steps = 20_000;
+        let h = dist / steps as f32;
+        let tau: f64 = (0..steps)
+            .map(|k| (media.sigma_t(x + dir * (k as f32 + 0.5) * h) * h) as f64)
+            .sum();
+        let exact = (-tau).exp();
+        for mode in [Mode::Adaptive, Mode::Woodcock] {
+            let direct = Direct {
+                lights: &lights,
+                geometry: &geometry,
+                free_path: FreePath {
+                    media: &media,
+                    mode,
+                },
+            };
+            let mut rng = Rng::new(5, 9);
+            let mut c = Counters::default();
+            let n = 40_000;
+            let v: Vec<f64> = (0..n)
+                .map(|_| direct.shadow(x, dir, dist, &mut rng, &mut c) as f64)
+                .collect();
+            let mean = v.iter().sum::<f64>() / n as f64;
+            let var = v.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            let se = (var / n as f64).sqrt();
+            eprintln!("{mode:?}: {mean:.5} +- {se:.5} vs {exact:.5} (tau {tau:.3})");
+            assert!(
+                (mean - exact).abs() < 4.0 * se,
+                "{mode:?}: {mean} vs {exact}"
+            );
+            assert!(se < 0.01 * exact, "test too weak: se {se}");
+            assert!(c.density_lookups > 0);
+        }
+    }
+}
