@@ -309,6 +309,10 @@ fn write_outputs(out: &Path, img: &Image, m: &OutputMeta) -> Result<()> {
         ("ppb.seed", s.seed.to_string()),
         ("ppb.beam_radius", format!("{:?}", s.beam_radius)),
         ("ppb.photon_radius", format!("{:?}", s.photon_radius)),
+        (
+            "ppb.smooth_photon_radius",
+            format!("{:?}", s.smooth_photon_radius),
+        ),
     ];
     let meta: Vec<(String, String)> = meta
         .into_iter()

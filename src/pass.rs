@@ -7,13 +7,15 @@ use glam::Vec3;
 use std::time::Instant;
 
 use crate::error::{Error, Result};
-use crate::estimate::{beams::BeamMap, cpu, photons::PhotonMap};
+use crate::estimate::{beams::BeamMap, cpu, photons::Photons};
 use crate::geometry::Geometry;
 use crate::media::homogeneous::ray_box;
 use crate::media::Media;
 use crate::plan::{PassPlan, Plan};
 use crate::scene::{Rgb, Scene};
-use crate::settings::{Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS};
+use crate::settings::{
+    Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS, SMOOTH_PHOTON_SCALE,
+};
 use crate::transport::camera::{CameraPass, CameraTracer, Pinhole};
 use crate::transport::direct::Direct;
 use crate::transport::freepath::FreePath;
@@ -31,6 +33,8 @@ pub struct Tracer {
     /// R1 of the beams and of the photons (m).
     pub beam_r1: f32,
     pub photon_r1: f32,
+    /// R1 of the smooth photons (after a diffuse or medium scattering).
+    pub smooth_photon_r1: f32,
     /// Whether camera paths can continue past a surface (then later camera segments need
     /// the beam BVH).
     has_specular: bool,
@@ -107,6 +111,10 @@ impl Tracer {
             Radius::Fixed(r) => r,
             Radius::Auto => auto(geometry.bounds(), AUTO_PHOTON_PIXELS),
         };
+        let smooth_photon_r1 = match settings.smooth_photon_radius {
+            Radius::Fixed(r) => r,
+            Radius::Auto => photon_r1 * SMOOTH_PHOTON_SCALE,
+        };
         let has_specular = scene
             .materials
             .iter()
@@ -129,6 +137,7 @@ impl Tracer {
             camera,
             beam_r1,
             photon_r1,
+            smooth_photon_r1,
         })
     }
 
@@ -168,6 +177,7 @@ impl Tracer {
             photon_alpha: self.settings.photon_alpha,
             beam_r1: self.beam_r1,
             photon_r1: self.photon_r1,
+            smooth_photon_r1: self.smooth_photon_r1,
             light_paths: self.settings.light_paths,
         }
     }
@@ -208,7 +218,7 @@ impl Tracer {
         let t1 = Instant::now();
         let beam_map = ((beam_map || self.has_specular) && !self.media.is_empty())
             .then(|| BeamMap::build(&light.beams, p.beam_radius));
-        let photons = PhotonMap::build(&light.photons, p.photon_radius);
+        let photons = Photons::build(&light.photons, p.photon_radius, p.smooth_photon_radius);
         let t2 = Instant::now();
         let ct = CameraTracer {
             camera: &self.camera,

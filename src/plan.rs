@@ -15,6 +15,8 @@ pub struct Plan {
     /// R1 of the beams and of the photons (m).
     pub beam_r1: f32,
     pub photon_r1: f32,
+    /// R1 of the smooth photons (after a diffuse or medium scattering).
+    pub smooth_photon_r1: f32,
     /// Light paths per pass.
     pub light_paths: usize,
 }
@@ -27,6 +29,7 @@ pub struct PassPlan {
     pub seed: u64,
     pub beam_radius: f32,
     pub photon_radius: f32,
+    pub smooth_photon_radius: f32,
     /// Light paths traced (each an unbiased estimate whatever the count).
     pub light_paths: usize,
 }
@@ -44,6 +47,11 @@ impl Plan {
             seed: self.seed,
             beam_radius: radius::beam_radius(self.beam_r1, index, self.alpha),
             photon_radius: radius::photon_radius(self.photon_r1, index, self.photon_alpha),
+            smooth_photon_radius: radius::photon_radius(
+                self.smooth_photon_r1,
+                index,
+                self.photon_alpha,
+            ),
             light_paths: light_paths.max(1),
         }
     }
@@ -105,6 +113,7 @@ mod tests {
             photon_alpha: 2.0 / 3.0,
             beam_r1: 0.5,
             photon_r1: 0.2,
+            smooth_photon_r1: 0.6,
             light_paths: 1000,
         };
         let p = plan.pass(2);

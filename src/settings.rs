@@ -21,6 +21,9 @@ pub struct RenderSettings {
     pub photon_alpha: f32,
     pub beam_radius: Radius,
     pub photon_radius: Radius,
+    /// R1 of the photons after a diffuse or medium scattering (auto: the photon R1 times
+    /// [`SMOOTH_PHOTON_SCALE`]).
+    pub smooth_photon_radius: Radius,
     pub seed: u64,
     /// PNG preview exposure in stops.
     pub exposure: f32,
@@ -58,6 +61,7 @@ impl Default for RenderSettings {
             photon_alpha: DEFAULT_PHOTON_ALPHA,
             beam_radius: Radius::Auto,
             photon_radius: Radius::Auto,
+            smooth_photon_radius: Radius::Auto,
             seed: 1,
             exposure: 0.0,
             tr_samples: crate::transport::transmittance::DEFAULT_TR_SAMPLES,
@@ -77,3 +81,6 @@ pub const DEFAULT_PHOTON_ALPHA: f32 = 0.9;
 pub const AUTO_BEAM_PIXELS: f32 = 1.0;
 /// Auto photon radius R1, in pixel footprints at the distance of the surfaces' centre.
 pub const AUTO_PHOTON_PIXELS: f32 = 3.0;
+/// R1 of the smooth photons (after a diffuse or medium scattering) over the photon radius
+/// R1 (README: measured at equal time).
+pub const SMOOTH_PHOTON_SCALE: f32 = 5.0;

@@ -39,6 +39,7 @@ fn quarter_renderer(scene: &str, seed: u64, paths: usize, mode: Mode, method: Me
     let mut s = file.settings.clone();
     s.beam_radius = Radius::Fixed(full.beam_r1);
     s.photon_radius = Radius::Fixed(full.photon_r1);
+    s.smooth_photon_radius = Radius::Fixed(full.smooth_photon_r1);
     s.free_path = mode;
     s.method = method;
     s.width /= BLOCK as u32;

@@ -5,7 +5,7 @@
 use glam::Vec3;
 use std::path::Path;
 
-use ppb::estimate::photons::PhotonMap;
+use ppb::estimate::photons::Photons;
 use ppb::geometry::Geometry;
 use ppb::media::Media;
 use ppb::sampling::Rng;
@@ -58,11 +58,12 @@ fn light_through_glass_reaches_the_floor_only_through_photons() {
             skip_direct,
         };
         let pass = tracer.trace_pass(7, 1, 200_000);
-        (PhotonMap::build(&pass.photons, 0.05), pass.beams.len())
+        // One radius for both kinds: the maps differ only in which photons they hold.
+        (Photons::build(&pass.photons, 0.05, 0.05), pass.beams.len())
     };
     let ((hybrid, hybrid_beams), (pure, pure_beams)) = (photons(true), photons(false));
     let mut n = 0;
-    let radiance = |m: &PhotonMap, p: Vec3, n: &mut u64| m.radiance(p, Vec3::Y, RHO, n).x;
+    let radiance = |m: &Photons, p: Vec3, n: &mut u64| m.radiance(p, Vec3::Y, RHO, n).x;
     // Under the glass: the caustic, the same photons whichever method traced them.
     let (h, p) = (
         radiance(&hybrid, under, &mut n),

@@ -360,6 +360,7 @@ pub fn bench_tr(args: BenchTrArgs) -> Result<ExitCode> {
         // Keep the full-resolution radii so the kernels blur the same world distance.
         base.beam_radius = ppb::settings::Radius::Fixed(full.beam_r1);
         base.photon_radius = ppb::settings::Radius::Fixed(full.photon_r1);
+        base.smooth_photon_radius = ppb::settings::Radius::Fixed(full.smooth_photon_r1);
         let over = Overrides {
             size: Some(args.size),
             paths: args.paths.clone(),

@@ -13,7 +13,7 @@ use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode, MAX_TR_BLO
 use super::{timed, Counters};
 use crate::bsdf;
 use crate::estimate::eq2::camera_tr;
-use crate::estimate::photons::PhotonMap;
+use crate::estimate::photons::Photons;
 use crate::geometry::{Geometry, Ray, Surface, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
@@ -178,7 +178,7 @@ pub struct CameraTracer<'a> {
     /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
     pub tr_mode: TrMode,
-    pub photons: &'a PhotonMap,
+    pub photons: &'a Photons,
     /// Next-event estimation of direct light (the hybrid method), or None (pure PPB).
     pub direct: Option<Direct<'a>>,
 }

@@ -194,6 +194,8 @@ impl LightTracer<'_> {
         let mut in_glass = false;
         // Whether the path still runs straight from the light (what NEE covers).
         let mut direct = self.skip_direct;
+        // Whether the path has scattered diffusely or in a medium (its photons are smooth).
+        let mut smooth = false;
         for _ in 0..MAX_DEPTH {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
@@ -222,7 +224,7 @@ impl LightTracer<'_> {
                     return;
                 }
                 power *= albedo / q;
-                direct = false;
+                (direct, smooth) = (false, true);
                 let (u1, u2) = (rng.f32(), rng.f32());
                 ray = Ray::new(p, phase.sample(ray.d, u1, u2));
                 continue;
@@ -232,9 +234,12 @@ impl LightTracer<'_> {
                 return;
             };
             let side = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
-            if let (Material::Lambert { .. }, false) = (material, direct) {
-                out.photons.push(Photon::new(h.p, side, power));
-                out.counters.photons += 1;
+            if let Material::Lambert { .. } = material {
+                if !direct {
+                    out.photons.push(Photon::new(h.p, side, power, smooth));
+                    out.counters.photons += 1;
+                }
+                smooth = true;
             }
             direct = false;
             let (u, u2) = (rng.f32(), rng.vec2());

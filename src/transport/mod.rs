@@ -33,7 +33,10 @@ pub struct Beam {
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Photon {
     pub position: [f32; 3],
-    pub _pad: f32,
+    /// 1 when its path scattered diffusely or in a medium before (smooth light, estimated
+    /// with a wider radius), 0 for light straight from a light or through specular
+    /// surfaces only (direct light and caustics, which have sharp edges).
+    pub smooth: u32,
     /// Surface normal on the side the photon arrived from.
     pub normal: [f32; 3],
     pub _pad2: f32,
@@ -56,10 +59,10 @@ impl Beam {
 }
 
 impl Photon {
-    pub fn new(position: Vec3, normal: Vec3, power: Vec3) -> Self {
+    pub fn new(position: Vec3, normal: Vec3, power: Vec3, smooth: bool) -> Self {
         Photon {
             position: position.into(),
-            _pad: 0.0,
+            smooth: smooth as u32,
             normal: normal.into(),
             _pad2: 0.0,
             power: power.into(),
