@@ -189,6 +189,21 @@ fn bad_input_is_one_clear_line() {
         |_, s| rewrite(s, "type = \"point\"", "type = \"laser\""),
         &["scene.toml", "laser"],
     );
+    assert_bad(
+        "bad-method",
+        |_, s| rewrite(s, "passes = 2", "passes = 2\nmethod = \"pt\""),
+        &["render.method", "expected hybrid or ppb", "\"pt\""],
+    );
+    assert_bad(
+        "bad-photon-alpha",
+        |_, s| rewrite(s, "passes = 2", "passes = 2\nphoton_alpha = 1.5"),
+        &["render.photon_alpha", "(0, 1)"],
+    );
+    assert_bad(
+        "bad-smooth-radius",
+        |_, s| rewrite(s, "passes = 2", "passes = 2\nsmooth_photon_radius = -1"),
+        &["render.smooth_photon_radius"],
+    );
 }
 
 #[test]
