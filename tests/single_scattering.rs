@@ -335,7 +335,8 @@ fn nee(light: Light, n: usize) -> (f64, f64) {
     let v: Vec<f64> = (0..n)
         .map(|_| {
             let tr = |t: f32| (-SIGMA_T * t).exp();
-            direct.along(&ray, len, tr, &mut rng, &mut c).x as f64
+            let spans = media.spans(&ray, len);
+            direct.along(&ray, len, &spans, tr, &mut rng, &mut c).x as f64
         })
         .collect();
     let mean = v.iter().sum::<f64>() / n as f64;

@@ -314,15 +314,20 @@ impl CameraTracer<'_> {
                 None => (None, None),
             };
             let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat);
-            let in_media = !st.in_glass && !self.media.spans(&ray, t_surf).is_empty();
-            if let (Some(d), true) = (&self.direct, in_media) {
+            // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
+            let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
+                self.media.spans(&ray, t_surf)
+            } else {
+                Default::default()
+            };
+            if let (Some(d), false) = (&self.direct, spans.is_empty()) {
                 let tr = |t| camera_tr(self.media, &ray, &gtr, t);
-                l += st.beta * d.along(&ray, t_surf, tr, rng, c);
+                l += st.beta * d.along(&ray, t_surf, &spans, tr, rng, c);
             }
             if let Some(p) = primary {
                 p.t_surf = t_surf;
                 p.tr = gtr.clone();
-            } else if in_media {
+            } else if !spans.is_empty() {
                 out.segments.push(Secondary {
                     pixel: out.pixel,
                     ray,

@@ -11,7 +11,7 @@ use smallvec::SmallVec;
 use std::f32::consts::PI;
 
 use super::freepath::FreePath;
-use super::light::LightSampler;
+use super::light::{spot_falloff, LightSampler};
 use super::Counters;
 use crate::geometry::{Geometry, Ray, EPS};
 use crate::media::Media;
@@ -73,14 +73,6 @@ pub fn anchor(light: &Light) -> Option<Vec3> {
         Light::Sphere { center, .. } => Some(center),
         Light::Directional { .. } => None,
     }
-}
-
-/// Spot falloff along emission direction `w`: full inside `inner_deg`, linear in cos to
-/// zero at `outer_deg` (what the light tracer emits).
-pub fn spot_falloff(axis: Vec3, inner_deg: f32, outer_deg: f32, w: Vec3) -> f32 {
-    let cos_outer = outer_deg.to_radians().cos();
-    let cos_inner = inner_deg.to_radians().cos();
-    ((w.dot(axis) - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0)
 }
 
 fn towards(position: Vec3, x: Vec3, intensity: Rgb) -> Option<LightSample> {
@@ -246,14 +238,15 @@ impl Direct<'_> {
         rho / PI * s.value * (cos * tr / prob)
     }
 
-    /// Single-scattered direct light along the camera segment [0, t_surf) of `ray`: one
-    /// light picked by power, one distance per media span by equiangular sampling towards
-    /// it (one along the whole segment by the majorant for a directional light), times
-    /// the camera transmittance `cam_tr(t)` from the ray origin.
+    /// Single-scattered direct light along the camera segment [0, t_surf) of `ray`, whose
+    /// media spans are `spans`: one light picked by power, one distance per span by
+    /// equiangular sampling towards it (one along the whole segment by the majorant for a
+    /// directional light), times the camera transmittance `cam_tr(t)` from the ray origin.
     pub fn along(
         &self,
         ray: &Ray,
         t_surf: f32,
+        spans: &[(f32, f32)],
         cam_tr: impl Fn(f32) -> f32,
         rng: &mut Rng,
         c: &mut Counters,
@@ -264,7 +257,7 @@ impl Direct<'_> {
         let mut l = Rgb::ZERO;
         match anchor(light) {
             Some(at) => {
-                for (a, b) in self.media().spans(ray, t_surf) {
+                for &(a, b) in spans {
                     let (t, pdf) = equiangular(ray, at, a, b, rng.f32());
                     l += self.scattered(ray, t, light, &cam_tr, rng, c) / pdf;
                 }

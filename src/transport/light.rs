@@ -3,7 +3,6 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::direct::spot_falloff;
 use super::freepath::FreePath;
 use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
@@ -271,6 +270,14 @@ impl LightTracer<'_> {
             out.counters.beams += 1;
         }
     }
+}
+
+/// Spot falloff along emission direction `w`: full inside `inner_deg`, linear in cos to
+/// zero at `outer_deg` (what the light tracer emits).
+pub fn spot_falloff(axis: Vec3, inner_deg: f32, outer_deg: f32, w: Vec3) -> f32 {
+    let cos_outer = outer_deg.to_radians().cos();
+    let cos_inner = inner_deg.to_radians().cos();
+    ((w.dot(axis) - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0)
 }
 
 /// Whether a path leaving a surface along `dir` travels inside a dielectric: meshes are
