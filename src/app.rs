@@ -1,19 +1,20 @@
 //! The command line: arguments, progress, status lines and outputs. Every command that
 //! renders drives a [`ppb::session::Session`]; this module only configures it.
 mod bench;
+mod farm;
 mod info;
+mod progress;
 mod render;
 mod watch;
 mod window;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
 
 pub use bench::{bench, bench_gpu, bench_tr, BenchGpuArgs, BenchTableArgs, BenchTrArgs};
+pub use farm::{farm, merge, plan, FarmArgs, MergeArgs, PlanArgs};
 pub use info::{compare, info, CompareArgs};
 pub use render::{render, RenderArgs};
 pub use watch::{watch, WatchArgs};
@@ -21,7 +22,7 @@ pub use watch::{watch, WatchArgs};
 use ppb::gpu::{DeviceKind, Gpu};
 use ppb::majorant::cache;
 use ppb::media::Media;
-use ppb::output::{self, Image};
+use ppb::output::{self, ExrMeta, Image};
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::settings::{Method, RenderSettings};
 use ppb::transport::freepath::Mode;
@@ -145,9 +146,33 @@ pub struct Machine {
     pub device: DeviceKind,
 }
 
+/// An error met while rendering (a device lost, an output that cannot be written), not
+/// in the input: `ppb` exits 1 for it, 2 for bad input.
+#[derive(Debug)]
+pub struct Failed(anyhow::Error);
+
+impl std::fmt::Display for Failed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.0)
+    }
+}
+
+impl std::error::Error for Failed {}
+
+/// `e` marked as a failure of the render (exit code 1).
+pub fn failed(e: impl Into<anyhow::Error>) -> anyhow::Error {
+    anyhow::Error::new(Failed(e.into()))
+}
+
 /// Loads a scene file and prints its warnings (deprecated keys) on stderr.
 fn load_scene(path: &Path) -> Result<SceneFile> {
-    let file = scene_toml::load(path)?;
+    load_frame(path, None)
+}
+
+/// Loads frame `frame` of a scene (the frame token in its paths replaced) and prints its
+/// warnings on stderr.
+fn load_frame(path: &Path, frame: Option<u32>) -> Result<SceneFile> {
+    let file = scene_toml::load_frame(path, frame)?;
     for w in &file.warnings {
         eprintln!("warning: {w}");
     }
@@ -263,28 +288,6 @@ fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-fn progress_bar(quiet: bool, budget: Option<Duration>, passes: u32) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let (len, template) = match budget {
-        Some(b) => (
-            b.as_secs().max(1),
-            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} s  {msg}",
-        ),
-        None => (
-            passes as u64,
-            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} passes  {per_sec}  ETA {eta}",
-        ),
-    };
-    let bar = ProgressBar::new(len);
-    if let Ok(style) = ProgressStyle::with_template(template) {
-        bar.set_style(style);
-    }
-    bar.enable_steady_tick(Duration::from_millis(250));
-    bar
-}
-
 /// What an output's EXR header records besides the pixels.
 struct OutputMeta<'a> {
     scene: &'a Path,
@@ -295,32 +298,45 @@ struct OutputMeta<'a> {
     extra: &'a [(String, String)],
 }
 
+impl OutputMeta<'_> {
+    /// The EXR header: OpenEXR's standard attributes and `ppb/...` for the rest.
+    fn exr(&self) -> ExrMeta {
+        let s = self.settings;
+        let mut m = ExrMeta::text(&[
+            ("ppb/version", env!("CARGO_PKG_VERSION").to_string()),
+            ("ppb/scene", self.scene.display().to_string()),
+            ("ppb/passes", self.passes.to_string()),
+            ("ppb/render_seconds", format!("{:.3}", self.seconds)),
+            ("ppb/method", format!("{:?}", s.method).to_lowercase()),
+            ("ppb/light_paths", s.light_paths.to_string()),
+            ("ppb/alpha", s.alpha.to_string()),
+            ("ppb/photon_alpha", s.photon_alpha.to_string()),
+            ("ppb/seed", s.seed.to_string()),
+            ("ppb/beam_radius", format!("{:?}", s.beam_radius)),
+            ("ppb/photon_radius", format!("{:?}", s.photon_radius)),
+            (
+                "ppb/smooth_photon_radius",
+                format!("{:?}", s.smooth_photon_radius),
+            ),
+        ]);
+        for (k, v) in self.extra {
+            m.set(k, v.clone());
+        }
+        m.owner = std::env::var("USER").ok().filter(|u| !u.is_empty());
+        m.comments = Some(format!("rendered by ppb from {}", self.scene.display()));
+        m
+    }
+}
+
 /// Writes the EXR (atomically, settings in the header) and its PNG preview beside it.
 fn write_outputs(out: &Path, img: &Image, m: &OutputMeta) -> Result<()> {
-    let s = m.settings;
-    let meta = [
-        ("ppb.scene", m.scene.display().to_string()),
-        ("ppb.passes", m.passes.to_string()),
-        ("ppb.seconds", format!("{:.3}", m.seconds)),
-        ("ppb.method", format!("{:?}", s.method).to_lowercase()),
-        ("ppb.light_paths", s.light_paths.to_string()),
-        ("ppb.alpha", s.alpha.to_string()),
-        ("ppb.photon_alpha", s.photon_alpha.to_string()),
-        ("ppb.seed", s.seed.to_string()),
-        ("ppb.beam_radius", format!("{:?}", s.beam_radius)),
-        ("ppb.photon_radius", format!("{:?}", s.photon_radius)),
-        (
-            "ppb.smooth_photon_radius",
-            format!("{:?}", s.smooth_photon_radius),
-        ),
-    ];
-    let meta: Vec<(String, String)> = meta
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .chain(m.extra.iter().cloned())
-        .collect();
-    output::write_exr(out, img, &meta)?;
-    output::write_png(&out.with_extension("png"), img, s.exposure)?;
+    write_image(out, img, &m.exr(), m.settings.exposure)
+}
+
+/// Writes the EXR with header `meta` and its PNG preview beside it.
+fn write_image(out: &Path, img: &Image, meta: &ExrMeta, exposure: f32) -> Result<()> {
+    output::write_exr(out, img, meta)?;
+    output::write_png(&out.with_extension("png"), img, exposure)?;
     Ok(())
 }
 

@@ -1,13 +1,33 @@
 //! Progressive accumulation: the image is the mean of the pass images (each pass is an
 //! independent estimate with its own radii, as in Knaus and Zwicker's formulation).
+//!
+//! Sums are fixed-point integers: every value added is rounded once to a multiple of
+//! 2^-[`FRACTION_BITS`], and integer addition is associative. So the sums of passes
+//! 1..=8 are the same bits whether one process adds them in order or shards add 1..=4
+//! and 5..=8 and a merge adds the two sums ([`Film::merge`]): farm renders merge exactly.
 use crate::scene::Rgb;
 
-#[derive(Clone, Debug)]
+/// Fraction bits of the fixed-point sums: a resolution of 3.6e-15, and room for sums up
+/// to 2^79 (6e23) in an i128.
+pub const FRACTION_BITS: i32 = 48;
+const SCALE: f64 = (1u64 << FRACTION_BITS) as f64;
+
+#[derive(Clone, Debug, PartialEq)]
 pub struct Film {
     pub width: u32,
     pub height: u32,
-    sum: Vec<[f64; 3]>,
+    sum: Vec<[i128; 3]>,
     passes: u32,
+}
+
+/// `x` as a fixed-point value; non-finite values (never produced by a correct pass)
+/// saturate or become 0, so they cannot poison a merge.
+fn fixed(x: f32) -> i128 {
+    (x as f64 * SCALE).round() as i128
+}
+
+fn float(s: i128) -> f64 {
+    s as f64 / SCALE
 }
 
 impl Film {
@@ -15,17 +35,33 @@ impl Film {
         Film {
             width,
             height,
-            sum: vec![[0.0; 3]; (width * height) as usize],
+            sum: vec![[0; 3]; (width * height) as usize],
             passes: 0,
         }
+    }
+
+    /// A film from stored sums over `passes` passes (a part file); None when the pixel
+    /// count does not match the size.
+    pub fn from_sums(width: u32, height: u32, passes: u32, sum: Vec<[i128; 3]>) -> Option<Self> {
+        (sum.len() == (width as usize) * (height as usize)).then_some(Film {
+            width,
+            height,
+            sum,
+            passes,
+        })
+    }
+
+    /// The fixed-point sums, row-major RGB.
+    pub fn sums(&self) -> &[[i128; 3]] {
+        &self.sum
     }
 
     /// Adds `img` to the current pass's sums (one pass adds several estimates).
     pub fn add(&mut self, img: &[Rgb]) {
         for (s, p) in self.sum.iter_mut().zip(img) {
-            s[0] += p.x as f64;
-            s[1] += p.y as f64;
-            s[2] += p.z as f64;
+            s[0] += fixed(p.x);
+            s[1] += fixed(p.y);
+            s[2] += fixed(p.z);
         }
     }
 
@@ -33,6 +69,18 @@ impl Film {
     pub fn add_pass(&mut self, img: &[Rgb]) {
         self.add(img);
         self.passes += 1;
+    }
+
+    /// Adds another film's sums and passes (same size); the result does not depend on
+    /// the order in which films are merged.
+    pub fn merge(&mut self, other: &Film) {
+        debug_assert_eq!((self.width, self.height), (other.width, other.height));
+        for (s, o) in self.sum.iter_mut().zip(&other.sum) {
+            for c in 0..3 {
+                s[c] += o[c];
+            }
+        }
+        self.passes += other.passes;
     }
 
     pub fn passes(&self) -> u32 {
@@ -44,13 +92,7 @@ impl Film {
         let inv = 1.0 / self.passes.max(1) as f64;
         self.sum
             .iter()
-            .map(|s| {
-                [
-                    (s[0] * inv) as f32,
-                    (s[1] * inv) as f32,
-                    (s[2] * inv) as f32,
-                ]
-            })
+            .map(|s| s.map(|c| (float(c) * inv) as f32))
             .collect()
     }
 
@@ -61,13 +103,57 @@ impl Film {
         self.sum
             .iter()
             .zip(extra)
-            .map(|(s, e)| {
-                [
-                    ((s[0] + e[0] as f64) * inv) as f32,
-                    ((s[1] + e[1] as f64) * inv) as f32,
-                    ((s[2] + e[2] as f64) * inv) as f32,
-                ]
-            })
+            .map(|(s, e)| [0, 1, 2].map(|c| ((float(s[c]) + e[c] as f64) * inv) as f32))
             .collect()
+    }
+
+    /// Adds per-pixel sums kept outside the film (the GPU's) into it, once, so the film
+    /// can be stored.
+    pub fn absorb(&mut self, extra: &[[f32; 4]]) {
+        for (s, e) in self.sum.iter_mut().zip(extra) {
+            for c in 0..3 {
+                s[c] += fixed(e[c]);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// Sharded sums merge to the very bits of one film adding every pass in order.
+    #[test]
+    fn merged_shards_equal_one_film_bit_for_bit() {
+        let pass = |i: u32| -> Vec<Rgb> {
+            (0..7)
+                .map(|p| {
+                    let x = ((i * 7 + p) as f32 * 0.618_034).fract();
+                    Vec3::new(x * 1e-6, x * 3.7, x.powi(9) * 1e4)
+                })
+                .collect()
+        };
+        let mut one = Film::new(7, 1);
+        for i in 1..=12 {
+            one.add_pass(&pass(i));
+        }
+        let mut shards: Vec<Film> = [(1, 5), (5, 6), (6, 13)]
+            .iter()
+            .map(|&(a, b)| {
+                let mut f = Film::new(7, 1);
+                (a..b).for_each(|i| f.add_pass(&pass(i)));
+                f
+            })
+            .collect();
+        let mut merged = shards.pop().unwrap();
+        for s in shards.iter().rev() {
+            merged.merge(s);
+        }
+        assert_eq!(merged, one);
+        assert_eq!(merged.image(), one.image());
+        // The mean is within the fixed point's resolution of the f64 mean.
+        let exact: f64 = (1..=12).map(|i| pass(i)[3].y as f64).sum::<f64>() / 12.0;
+        assert!((one.image()[3][1] as f64 - exact).abs() <= 1e-6 * exact);
     }
 }

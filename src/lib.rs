@@ -10,6 +10,7 @@ pub mod bsdf;
 pub mod compare;
 pub mod error;
 pub mod estimate;
+pub mod farm;
 pub mod film;
 pub mod geometry;
 pub mod gpu;

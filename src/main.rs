@@ -97,6 +97,41 @@ crossings per pass and per second, the relative L1 difference between the two im
 number of pixels that differ by more than 1e-3."
     )]
     BenchGpu(app::BenchGpuArgs),
+    /// List a render's farm tasks: task index -> frame and pass range.
+    #[command(
+        long_about = "Print how a render splits into farm tasks: frame-major, each frame's passes \
+cut into ranges of --passes-per-task. Task K is what `ppb render --task-index K` (or \
+--task-index-env VAR) renders with the same --frames, --passes and --passes-per-task; the \
+mapping is a pure function of those flags.\n\n\
+Example:\n  ppb plan scenes/mantaflow/smoke.toml --frames 16-48 --passes 256 --passes-per-task 64 --json"
+    )]
+    Plan(app::PlanArgs),
+    /// Merge a frame's part files into its image, bit-identical to one render.
+    #[command(
+        long_about = "Sum the part files of a frame (written by `ppb render --task-index` or \
+--pass-range) into one EXR and PNG. The parts must come from the same scene and assets (hash), \
+settings, resolution, seed, frame and ppb version, and cover the frame's passes exactly once; \
+otherwise the merge names the files and stops. Sums are fixed-point, so the image is bit for bit \
+the one a single `ppb render` of the same passes writes.\n\n\
+Examples:\n  ppb merge out/shot.0016.passes-*.ppbpart -o out/shot.0016.exr\n  \
+ppb merge --frames 16-48 -o out/shot.####.exr   (finds each frame's parts beside its output)"
+    )]
+    Merge(app::MergeArgs),
+    /// Write job files that run a render on Slurm, OpenJD (Deadline Cloud) or Kubernetes.
+    #[command(
+        long_about = "Write the job files of a farm render: one task per (frame, pass range) \
+running `ppb render --task-index-env ...`, and one merge per frame list after all of them \
+succeed. ppb schedules nothing itself: the engine runs the tasks.\n\n\
+slurm: render.sbatch (a job array), merge.sbatch and submit.sh (sbatch the array, then the \
+merge with --dependency=afterok, and wait).\n\
+openjd: job.template.yaml (a render step over a task index parameter and a merge step that \
+depends on it), for `openjd run` or AWS Deadline Cloud.\n\
+k8s: job.yaml (an Indexed Job reading JOB_COMPLETION_INDEX, and a merge Job) for a cluster \
+whose nodes share the project folder at the same path.\n\n\
+Example:\n  ppb farm slurm scenes/mantaflow/smoke.toml --frames 16-48 --passes 256 \
+--passes-per-task 64 -o out/smoke.####.exr --jobs farm/"
+    )]
+    Farm(app::FarmArgs),
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -129,13 +164,17 @@ fn main() -> ExitCode {
         Command::Build(args) => app::build(args),
         Command::BenchTr(args) => app::bench_tr(args),
         Command::BenchGpu(args) => app::bench_gpu(args),
+        Command::Plan(args) => app::plan(args),
+        Command::Merge(args) => app::merge(args),
+        Command::Farm(args) => app::farm(args),
         Command::Info { scene } => app::info(&scene),
     };
     match result {
         Ok(code) => code,
+        // 1: the render failed; 2: bad input or usage (as clap's usage errors).
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::from(2)
+            ExitCode::from(if e.is::<app::Failed>() { 1 } else { 2 })
         }
     }
 }

@@ -36,8 +36,85 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Res
     })
 }
 
-/// Writes an EXR with string attributes `meta` (name, value) in its header.
-pub fn write_exr(path: &Path, img: &Image, meta: &[(String, String)]) -> Result<()> {
+/// An EXR header besides the pixels: OpenEXR's standard attributes where one exists,
+/// and `ppb/...` text attributes for the rest. The capture date (UTC, `utcOffset` 0) is
+/// the moment of writing.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExrMeta {
+    pub owner: Option<String>,
+    pub comments: Option<String>,
+    pub frames_per_second: Option<f64>,
+    /// Imath's row-vector convention (translation in the last row), camera looking down -Z.
+    pub world_to_camera: Option<[f32; 16]>,
+    pub world_to_ndc: Option<[f32; 16]>,
+    /// (name, value) text attributes.
+    pub text: Vec<(String, String)>,
+}
+
+impl ExrMeta {
+    /// Only text attributes.
+    pub fn text(text: &[(&str, String)]) -> Self {
+        ExrMeta {
+            text: text
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.clone()))
+                .collect(),
+            ..Default::default()
+        }
+    }
+
+    /// Sets (or adds) text attribute `name`.
+    pub fn set(&mut self, name: &str, value: String) {
+        match self.text.iter_mut().find(|(k, _)| k == name) {
+            Some((_, v)) => *v = value,
+            None => self.text.push((name.to_string(), value)),
+        }
+    }
+
+    fn layer_attributes(&self) -> LayerAttributes {
+        let mut a = LayerAttributes::named("");
+        let text = |s: &Option<String>| s.as_deref().map(Text::from);
+        a.owner = text(&self.owner);
+        a.comments = text(&self.comments);
+        a.capture_date = Some(Text::from(capture_date().as_str()));
+        a.utc_offset = Some(0.0);
+        a.frames_per_second = self.frames_per_second.map(rational);
+        a.world_to_camera = self.world_to_camera;
+        a.world_to_normalized_device = self.world_to_ndc;
+        a.software_name = Some(Text::from(concat!("ppb ", env!("CARGO_PKG_VERSION"))));
+        for (k, v) in &self.text {
+            a.other.insert(
+                Text::from(k.as_str()),
+                AttributeValue::Text(Text::from(v.as_str())),
+            );
+        }
+        a
+    }
+}
+
+/// OpenEXR's capDate format, "YYYY:MM:DD hh:mm:ss", in UTC.
+fn capture_date() -> String {
+    let t = time::OffsetDateTime::now_utc();
+    format!(
+        "{:04}:{:02}:{:02} {:02}:{:02}:{:02}",
+        t.year(),
+        t.month() as u8,
+        t.day(),
+        t.hour(),
+        t.minute(),
+        t.second()
+    )
+}
+
+/// Frames per second as a rational: 24 -> 24/1, 29.97 -> 2997/100 (NTSC 30000/1001 is
+/// written as 2997/100, within 1e-5).
+fn rational(fps: f64) -> (i32, u32) {
+    let den = if fps.fract() == 0.0 { 1 } else { 1000 };
+    ((fps * den as f64).round() as i32, den)
+}
+
+/// Writes an EXR with the header `meta`.
+pub fn write_exr(path: &Path, img: &Image, meta: &ExrMeta) -> Result<()> {
     write_atomic(path, |tmp| {
         let px = &img.pixels;
         let w = img.width;
@@ -45,16 +122,9 @@ pub fn write_exr(path: &Path, img: &Image, meta: &[(String, String)]) -> Result<
             let v = px[p.y() * w + p.x()];
             (v[0], v[1], v[2])
         });
-        let mut layer_attrs = LayerAttributes::named("");
-        for (k, v) in meta {
-            layer_attrs.other.insert(
-                Text::from(k.as_str()),
-                AttributeValue::Text(Text::from(v.as_str())),
-            );
-        }
         let layer = Layer::new(
             (img.width, img.height),
-            layer_attrs,
+            meta.layer_attributes(),
             Encoding::SMALL_LOSSLESS,
             channels,
         );
@@ -63,6 +133,28 @@ pub fn write_exr(path: &Path, img: &Image, meta: &[(String, String)]) -> Result<
             .to_file(tmp)
             .map_err(|e| Error::format(path, format!("writing EXR: {e}")))
     })
+}
+
+/// The text attributes of an EXR's first layer (name, value), sorted by name.
+pub fn read_exr_text(path: &Path) -> Result<Vec<(String, String)>> {
+    let meta = ::exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| Error::format(path, format!("reading EXR header: {e}")))?;
+    let mut out: Vec<(String, String)> = meta
+        .headers
+        .first()
+        .map(|h| {
+            h.own_attributes
+                .other
+                .iter()
+                .filter_map(|(k, v)| match v {
+                    AttributeValue::Text(t) => Some((k.to_string(), t.to_string())),
+                    _ => None,
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    Ok(out)
 }
 
 /// Reads the R, G, B channels of the first layer of an EXR.
@@ -145,7 +237,13 @@ mod tests {
             height: 2,
             pixels: (0..6).map(|i| [i as f32, 0.5, -1.0]).collect(),
         };
-        write_exr(&path, &img, &[("ppb.passes".into(), "7".into())]).unwrap();
+        let mut meta = ExrMeta::text(&[("ppb/passes", "7".into())]);
+        meta.frames_per_second = Some(24.0);
+        write_exr(&path, &img, &meta).unwrap();
+        assert_eq!(
+            read_exr_text(&path).unwrap(),
+            [("ppb/passes".into(), "7".into())]
+        );
         let back = read_exr(&path).unwrap();
         assert_eq!((back.width, back.height), (3, 2));
         assert_eq!(back.pixels, img.pixels);

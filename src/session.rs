@@ -190,6 +190,23 @@ impl Session {
         })
     }
 
+    /// The film with the estimator's sums added (read back from the GPU): everything the
+    /// passes so far added, to store in a part file.
+    pub fn film(&mut self) -> Result<Film> {
+        let mut film = self.film.clone();
+        if let Some(acc) = self.estimator.held()? {
+            film.absorb(&acc);
+        }
+        Ok(film)
+    }
+
+    /// Continues from `film` (a partial part file's sums): the next passes add to it.
+    pub fn resume(&mut self, film: Film) -> Result<()> {
+        self.restart()?;
+        self.film = film;
+        Ok(())
+    }
+
     /// Empties the film and the estimator's sums; the next pass starts a new average.
     pub fn restart(&mut self) -> Result<()> {
         self.estimator.clear()?;

@@ -113,7 +113,7 @@ fn renders_with_outputs_and_stats() {
         p[0] *= 1.5;
     }
     let b = dir.join("brighter.exr");
-    ppb::output::write_exr(&b, &brighter, &[]).unwrap();
+    ppb::output::write_exr(&b, &brighter, &Default::default()).unwrap();
     let diff = ppb()
         .args(["compare", "--max-rel-l1", "0.01"])
         .arg(&b)

@@ -578,7 +578,7 @@ impl Worker {
             return;
         };
         let exposure = cur.settings.exposure;
-        let extra = [("ppb.reload".to_string(), self.generation.to_string())];
+        let extra = [("ppb/reload".to_string(), self.generation.to_string())];
         let r = self.write_image(&self.out, img, exposure, &extra);
         self.last_write = Instant::now();
         if let Err(e) = r {

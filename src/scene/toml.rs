@@ -9,6 +9,7 @@ use super::grids::GridFile;
 use super::medium::{toml_field, MediumSpec, TransformSpec};
 use super::{Camera, Format, Imported, Light, Material, NamedMaterial, Scene};
 use crate::error::{Error, Result};
+use crate::farm::frames;
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc};
 use crate::settings::{Radius, RenderSettings};
@@ -268,12 +269,117 @@ pub fn load(path: &Path) -> Result<SceneFile> {
 ///
 /// Every file is read from disk at most once per load (`cache.files_read()` lists them).
 pub fn load_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
+    load_with(path, cache, None)
+}
+
+/// Frame `frame` of a scene: the frame token (a run of `#`, see [`crate::farm::frames`])
+/// in the scene's path and in the paths it names (imports, meshes, grid media) becomes
+/// the frame number. Without a frame, paths are taken as written.
+pub fn load_frame(path: &Path, frame: Option<u32>) -> Result<SceneFile> {
+    let path = at_frame(path, frame);
+    load_with(&path, &mut AssetCache::new(), frame)
+}
+
+fn at_frame(path: &Path, frame: Option<u32>) -> PathBuf {
+    match (frame, path.to_str()) {
+        (Some(f), Some(s)) if frames::has_token(s) => PathBuf::from(frames::with_frame(s, f)),
+        _ => path.to_path_buf(),
+    }
+}
+
+/// Checks, before any work starts, that every file a frame's paths name exists for every
+/// frame in `frames`; the error names the frame, the field and the missing file.
+pub fn check_frames(path: &Path, frames: &[u32]) -> Result<()> {
+    for &f in frames {
+        let scene = at_frame(path, Some(f));
+        if !scene.is_file() {
+            return Err(Error::Other(format!(
+                "frame {f}: scene file {} does not exist",
+                scene.display()
+            )));
+        }
+        if Format::of_scene(&scene)? == Format::Usd {
+            continue;
+        }
+        let text = std::fs::read_to_string(&scene).map_err(|e| Error::io(&scene, e))?;
+        let file = parse_file(&scene, &text)?;
+        let dir = scene.parent().unwrap_or(Path::new("."));
+        for (field, p) in file.paths() {
+            let p = dir.join(at_frame(p, Some(f)));
+            if !p.exists() {
+                return Err(Error::field(
+                    &scene,
+                    field,
+                    format!("frame {f}: {} does not exist", p.display()),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+impl FileScene {
+    /// Every path the file names, with its field.
+    fn paths(&self) -> Vec<(String, &Path)> {
+        let imports = self.import.iter().enumerate();
+        let meshes = self.mesh.iter().enumerate();
+        let media = self.medium.iter().enumerate().filter_map(|(i, m)| match m {
+            FileMedium::Grid { path, .. } => Some((format!("medium[{i}].path"), path.as_path())),
+            _ => None,
+        });
+        imports
+            .map(|(i, m)| (format!("import[{i}].path"), m.path.as_path()))
+            .chain(meshes.map(|(i, m)| (format!("mesh[{i}].path"), m.path.as_path())))
+            .chain(media)
+            .collect()
+    }
+
+    /// Without a frame: a path with the frame token that names no file is a sequence.
+    fn check_no_sequence(&self, scene: &Path) -> Result<()> {
+        let dir = scene.parent().unwrap_or(Path::new("."));
+        for (field, p) in self.paths() {
+            if frames::has_token(&p.to_string_lossy()) && !dir.join(p).exists() {
+                return Err(Error::field(
+                    scene,
+                    field,
+                    format!(
+                        "{} names a frame sequence (# is the frame number): render it with --frames",
+                        p.display()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The file with the frame token in its paths replaced by `frame`.
+    fn at_frame(mut self, frame: Option<u32>) -> Self {
+        for m in &mut self.import {
+            m.path = at_frame(&m.path, frame);
+        }
+        for m in &mut self.mesh {
+            m.path = at_frame(&m.path, frame);
+        }
+        for m in &mut self.medium {
+            if let FileMedium::Grid { path, .. } = m {
+                *path = at_frame(path, frame);
+            }
+        }
+        self
+    }
+}
+
+fn load_with(path: &Path, cache: &mut AssetCache, frame: Option<u32>) -> Result<SceneFile> {
     cache.begin();
     let file = (|| match Format::of_scene(path)? {
         Format::Usd => load_usd_scene_cached(path, cache),
         _ => {
             let text = cache.files().read_string(path)?;
-            build(path, parse_file(path, &text)?, cache)
+            let file = parse_file(path, &text)?;
+            if frame.is_none() {
+                file.check_no_sequence(path)?;
+            }
+            build(path, file.at_frame(frame), cache)
         }
     })();
     match file {

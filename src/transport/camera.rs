@@ -3,7 +3,7 @@
 //! media is recorded with its transmittance estimate and path weight, and the beam
 //! estimate along all of them runs afterwards (on the CPU in `estimate::cpu`, or on the
 //! GPU), so camera tracing and the beam estimate can overlap across passes.
-use glam::{Vec2, Vec3};
+use glam::{Mat4, Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 
 use super::direct::Direct;
@@ -117,6 +117,31 @@ impl Pinhole {
             (x + 1.0) * 0.5 * self.width as f32,
             (1.0 - y) * 0.5 * self.height as f32,
         )
+    }
+
+    /// World to camera space (x right, y up, looking down -z), as a column-vector matrix.
+    pub fn world_to_camera(&self) -> Mat4 {
+        let (r, u, f, o) = (self.right, self.up, self.forward, self.origin);
+        Mat4::from_cols(
+            Vec4::new(r.x, u.x, -f.x, 0.0),
+            Vec4::new(r.y, u.y, -f.y, 0.0),
+            Vec4::new(r.z, u.z, -f.z, 0.0),
+            Vec4::new(-r.dot(o), -u.dot(o), f.dot(o), 1.0),
+        )
+    }
+
+    /// World to the camera's clip space (x and y in -1..1 across the image after the
+    /// divide by w, y up; an infinite far plane, near 1 mm).
+    pub fn world_to_ndc(&self) -> Mat4 {
+        let aspect = self.width as f32 / self.height as f32;
+        let f = 1.0 / self.tan_half;
+        let projection = Mat4::from_cols(
+            Vec4::new(f / aspect, 0.0, 0.0, 0.0),
+            Vec4::new(0.0, f, 0.0, 0.0),
+            Vec4::new(0.0, 0.0, -1.0, -1.0),
+            Vec4::new(0.0, 0.0, -1e-3, 0.0),
+        );
+        projection * self.world_to_camera()
     }
 
     /// Pixels per metre for something at view depth `z`.
@@ -412,6 +437,27 @@ impl CameraTracer<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The EXR header's matrices put a point where the camera's projection does: in front
+    /// (negative z in camera space), at the same film position.
+    #[test]
+    fn header_matrices_match_the_projection() {
+        let cam = Camera {
+            origin: Vec3::new(1.0, 2.0, 5.0),
+            target: Vec3::new(0.0, 0.5, 0.0),
+            up: Vec3::Y,
+            vfov_deg: 35.0,
+        };
+        let pin = Pinhole::new(&cam, 160, 90);
+        let p = Vec3::new(0.3, 0.9, -0.4);
+        let c = pin.world_to_camera().transform_point3(p);
+        assert!((c.z + pin.depth(p)).abs() < 1e-5);
+        let clip = pin.world_to_ndc() * p.extend(1.0);
+        let ndc = clip.truncate().truncate() / clip.w;
+        let film = pin.project(p);
+        let want = Vec2::new(film.x / 160.0 * 2.0 - 1.0, 1.0 - film.y / 90.0 * 2.0);
+        assert!((ndc - want).length() < 1e-5, "{ndc} vs {want}");
+    }
 
     /// SPEC.md: looking down -Z from +Z with up +Y, world +X is on the right of the image,
     /// +Y in the upper half (row 0 at the top), and the field of view is vertical.

@@ -1,0 +1,336 @@
+//! Part files: one task's fixed-point film sums over a range of passes, with what a merge
+//! must check (scene and asset hash, settings, size, seed, frame, version). Written
+//! atomically; a torn, truncated or foreign file is refused (a checksum covers all of it).
+//!
+//! Layout: `PPBPART1`, the header's length (u32 LE), the header (JSON), the sums
+//! (width x height x RGB, i128 LE), then the blake3 hash of everything before it.
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::film::Film;
+use crate::output::{write_atomic, ExrMeta};
+
+use super::tasks::PassRange;
+
+const MAGIC: &[u8; 8] = b"PPBPART1";
+/// Largest header accepted (JSON; a real one is about 2 KB).
+const MAX_HEADER: usize = 1 << 20;
+
+/// What a part file says about its sums.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PartHeader {
+    /// ppb version that rendered it.
+    pub version: String,
+    /// The scene as the task was given it (for messages only).
+    pub scene: String,
+    /// blake3 of the scene file and every asset it read, in reading order.
+    pub scene_hash: String,
+    /// The render settings that change pixels (all but the pass count and exposure).
+    pub settings: String,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u64,
+    pub frame: Option<u32>,
+    /// Passes of the whole frame (a merge must cover `0..passes`).
+    pub passes: u32,
+    /// The task's pass range, and how many of its passes are in the sums (all of them
+    /// unless the task was interrupted).
+    pub range: PassRange,
+    pub done: u32,
+    /// Render seconds spent on these passes (over every run of the task).
+    pub seconds: f64,
+    /// PNG exposure of the merged image.
+    pub exposure: f32,
+    /// EXR header attributes of the merged image.
+    pub exr: ExrMeta,
+}
+
+impl PartHeader {
+    /// Whether every pass of its range is in the sums.
+    pub fn complete(&self) -> bool {
+        self.done == self.range.len()
+    }
+
+    /// The passes in the sums.
+    pub fn finished(&self) -> PassRange {
+        PassRange {
+            start: self.range.start,
+            end: self.range.start + self.done,
+        }
+    }
+}
+
+/// A part file read back.
+#[derive(Clone, Debug)]
+pub struct Part {
+    pub path: PathBuf,
+    pub header: PartHeader,
+    pub film: Film,
+}
+
+impl Part {
+    /// Writes `film` (its passes are `header.done`) atomically to `path`.
+    pub fn write(path: &Path, header: &PartHeader, film: &Film) -> Result<()> {
+        let json = serde_json::to_vec(header).map_err(|e| Error::format(path, e.to_string()))?;
+        let mut bytes = Vec::with_capacity(12 + json.len() + film.sums().len() * 48 + 32);
+        bytes.extend_from_slice(MAGIC);
+        bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        bytes.extend_from_slice(&json);
+        for px in film.sums() {
+            for c in px {
+                bytes.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        let hash = blake3::hash(&bytes);
+        bytes.extend_from_slice(hash.as_bytes());
+        write_atomic(path, |tmp| {
+            std::fs::write(tmp, &bytes).map_err(|e| Error::io(tmp, e))
+        })
+    }
+
+    /// Reads and checks a part file.
+    pub fn read(path: &Path) -> Result<Part> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bad = |msg: &str| Error::format(path, format!("not a valid ppb part file: {msg}"));
+        if bytes.len() < MAGIC.len() + 4 + 32 || &bytes[..8] != MAGIC {
+            return Err(bad("no PPBPART1 signature"));
+        }
+        let (body, hash) = bytes.split_at(bytes.len() - 32);
+        if blake3::hash(body).as_bytes() != hash {
+            return Err(bad("checksum mismatch (truncated or damaged)"));
+        }
+        let len = u32::from_le_bytes(body[8..12].try_into().unwrap_or_default()) as usize;
+        if len > MAX_HEADER || 12 + len > body.len() {
+            return Err(bad("header length out of range"));
+        }
+        let header: PartHeader = serde_json::from_slice(&body[12..12 + len])
+            .map_err(|e| bad(&format!("header: {e}")))?;
+        let data = &body[12 + len..];
+        let pixels = header.width as u64 * header.height as u64;
+        if data.len() as u64 != pixels * 48 {
+            return Err(bad(&format!(
+                "{} bytes of sums for {}x{} pixels",
+                data.len(),
+                header.width,
+                header.height
+            )));
+        }
+        if header.done > header.range.len() {
+            return Err(bad("more passes done than its range holds"));
+        }
+        let sums = data
+            .chunks_exact(48)
+            .map(|px| {
+                [0, 1, 2].map(|c| {
+                    i128::from_le_bytes(px[c * 16..c * 16 + 16].try_into().unwrap_or_default())
+                })
+            })
+            .collect();
+        let film = Film::from_sums(header.width, header.height, header.done, sums)
+            .ok_or_else(|| bad("size does not match the sums"))?;
+        Ok(Part {
+            path: path.to_path_buf(),
+            header,
+            film,
+        })
+    }
+}
+
+/// blake3 over the contents of `paths` (a scene file and the assets it read, in reading
+/// order): what a part file's scene hash is. Names are left out, so a farm that mounts the
+/// project elsewhere hashes the same.
+pub fn content_hash(paths: &[PathBuf]) -> Result<String> {
+    let mut all = blake3::Hasher::new();
+    for p in paths {
+        let mut h = blake3::Hasher::new();
+        h.update_reader(std::fs::File::open(p).map_err(|e| Error::io(p, e))?)
+            .map_err(|e| Error::io(p, e))?;
+        all.update(h.finalize().as_bytes());
+    }
+    Ok(all.finalize().to_hex().to_string())
+}
+
+/// Merges the parts of one frame into one film, after checking that they belong together
+/// and cover the frame's passes `0..passes` once each; returns the first part's header
+/// with the merged range and summed seconds.
+pub fn merge(mut parts: Vec<Part>) -> Result<(PartHeader, Film)> {
+    let Some(first) = parts.first() else {
+        return Err(Error::Other("no part files to merge".into()));
+    };
+    let h0 = first.header.clone();
+    let p0 = first.path.clone();
+    for p in &parts {
+        let h = &p.header;
+        let mismatch = |field: &str, a: String, b: String| {
+            Error::Other(format!(
+                "{} and {} do not belong to one render: {field} differs ({a} vs {b})",
+                p0.display(),
+                p.path.display()
+            ))
+        };
+        if h.version != h0.version {
+            return Err(mismatch(
+                "ppb version",
+                h0.version.clone(),
+                h.version.clone(),
+            ));
+        }
+        if h.scene_hash != h0.scene_hash {
+            return Err(mismatch(
+                "scene hash (the scene or an asset changed)",
+                h0.scene_hash.clone(),
+                h.scene_hash.clone(),
+            ));
+        }
+        if (h.width, h.height) != (h0.width, h0.height) {
+            return Err(mismatch(
+                "resolution",
+                format!("{}x{}", h0.width, h0.height),
+                format!("{}x{}", h.width, h.height),
+            ));
+        }
+        if h.settings != h0.settings {
+            return Err(mismatch(
+                "settings",
+                h0.settings.clone(),
+                h.settings.clone(),
+            ));
+        }
+        if h.seed != h0.seed {
+            return Err(mismatch("seed", h0.seed.to_string(), h.seed.to_string()));
+        }
+        if h.frame != h0.frame {
+            return Err(mismatch(
+                "frame",
+                format!("{:?}", h0.frame),
+                format!("{:?}", h.frame),
+            ));
+        }
+        if h.passes != h0.passes {
+            return Err(mismatch(
+                "pass count",
+                h0.passes.to_string(),
+                h.passes.to_string(),
+            ));
+        }
+        if !h.complete() {
+            return Err(Error::Other(format!(
+                "{} is partial: it holds passes {} of its range {} (the task was interrupted); run the task again to finish it",
+                p.path.display(),
+                h.finished(),
+                h.range
+            )));
+        }
+    }
+    parts.sort_by_key(|p| p.header.range);
+    let mut next = 0;
+    for (i, p) in parts.iter().enumerate() {
+        let r = p.header.range;
+        if r.start > next {
+            return Err(Error::Other(format!(
+                "passes {next}..{} are missing (no part covers them)",
+                r.start
+            )));
+        }
+        if r.start < next {
+            return Err(Error::Other(format!(
+                "{} (passes {r}) overlaps {} (passes {})",
+                p.path.display(),
+                parts[i - 1].path.display(),
+                parts[i - 1].header.range
+            )));
+        }
+        next = r.end;
+    }
+    if next != h0.passes {
+        return Err(Error::Other(format!(
+            "passes {next}..{} are missing (no part covers them)",
+            h0.passes
+        )));
+    }
+    let mut film = Film::new(h0.width, h0.height);
+    for p in &parts {
+        film.merge(&p.film);
+    }
+    let header = PartHeader {
+        range: PassRange {
+            start: 0,
+            end: h0.passes,
+        },
+        done: h0.passes,
+        seconds: parts.iter().map(|p| p.header.seconds).sum(),
+        ..h0
+    };
+    Ok((header, film))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    fn header(range: (u32, u32), done: u32) -> PartHeader {
+        PartHeader {
+            version: "0".into(),
+            scene: "s.toml".into(),
+            scene_hash: "h".into(),
+            settings: "s".into(),
+            width: 2,
+            height: 1,
+            seed: 1,
+            frame: Some(3),
+            passes: 4,
+            range: PassRange {
+                start: range.0,
+                end: range.1,
+            },
+            done,
+            seconds: 1.0,
+            exposure: 0.0,
+            exr: ExrMeta::default(),
+        }
+    }
+
+    fn part(dir: &Path, range: (u32, u32)) -> Part {
+        let mut film = Film::new(2, 1);
+        for i in range.0..range.1 {
+            film.add_pass(&[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
+        }
+        let path = dir.join(format!("p{}-{}.ppbpart", range.0, range.1));
+        Part::write(&path, &header(range, range.1 - range.0), &film).unwrap();
+        Part::read(&path).unwrap()
+    }
+
+    #[test]
+    fn parts_round_trip_merge_and_refuse_gaps_overlaps_and_damage() {
+        let dir = std::env::temp_dir().join(format!("ppb-part-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (a, b) = (part(&dir, (0, 1)), part(&dir, (1, 4)));
+        let whole = part(&dir, (0, 4));
+        let (h, film) = merge(vec![b.clone(), a.clone()]).unwrap();
+        assert_eq!(film, whole.film);
+        assert_eq!((h.range, h.done, h.seconds), (whole.header.range, 4, 2.0));
+        let msg = |parts: Vec<Part>| merge(parts).unwrap_err().to_string();
+        assert!(msg(vec![b.clone()]).contains("passes 0..1 are missing"));
+        assert!(msg(vec![a.clone()]).contains("passes 1..4 are missing"));
+        assert!(msg(vec![a.clone(), b.clone(), whole.clone()]).contains("overlaps"));
+        let mut other = a.clone();
+        other.header.scene_hash = "g".into();
+        assert!(msg(vec![other, b.clone()]).contains("scene hash"));
+        let mut partial = b.clone();
+        partial.header.done = 2;
+        assert!(msg(vec![a.clone(), partial]).contains("partial"));
+        // A flipped byte or a cut file is refused.
+        let mut bytes = std::fs::read(&a.path).unwrap();
+        let n = bytes.len();
+        bytes[n / 2] ^= 4;
+        std::fs::write(&a.path, &bytes).unwrap();
+        assert!(Part::read(&a.path)
+            .unwrap_err()
+            .to_string()
+            .contains("checksum"));
+        std::fs::write(&a.path, &bytes[..n - 40]).unwrap();
+        assert!(Part::read(&a.path).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
