@@ -3,6 +3,7 @@
 mod bench;
 mod farm;
 mod info;
+mod isolate;
 mod progress;
 mod render;
 mod watch;
@@ -16,6 +17,7 @@ use std::process::ExitCode;
 pub use bench::{bench, bench_gpu, bench_tr, BenchGpuArgs, BenchTableArgs, BenchTrArgs};
 pub use farm::{farm, merge, plan, FarmArgs, MergeArgs, PlanArgs};
 pub use info::{compare, info, CompareArgs};
+pub use isolate::{probe_in_child, usd_probe};
 pub use render::{render, RenderArgs};
 pub use watch::{watch, WatchArgs};
 
@@ -80,7 +82,7 @@ impl Overrides {
             (s.width, s.height) = (w, h);
         }
         if let Some(n) = self.paths.get() {
-            s.light_paths = n.max(1);
+            s.light_paths = n;
         }
         if let Some(e) = self.exposure {
             s.exposure = e;
@@ -102,6 +104,14 @@ impl Overrides {
         }
         if let Some(m) = self.method {
             s.method = m;
+        }
+        if let Some((field, msg)) = s.limits_error() {
+            let flag = if field == "light_paths" {
+                "--light-paths"
+            } else {
+                "--size"
+            };
+            anyhow::bail!("{flag}: {msg}");
         }
         Ok(s)
     }

@@ -132,6 +132,10 @@ Example:\n  ppb farm slurm scenes/mantaflow/smoke.toml --frames 16-48 --passes 2
 --passes-per-task 64 -o out/smoke.####.exr --jobs farm/"
     )]
     Farm(app::FarmArgs),
+    /// Parse a USD stage and exit (ppb runs it in a child process before it parses a
+    /// stage itself, so a crash in the USD reader cannot take a render down).
+    #[command(name = "__usd-probe", hide = true)]
+    UsdProbe { path: PathBuf },
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -148,6 +152,9 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
+    if !matches!(cli.command, Command::UsdProbe { .. }) {
+        ppb::scene::usd::set_probe(app::probe_in_child);
+    }
     // Only the commands that may probe for a GPU need it.
     #[cfg(unix)]
     if matches!(
@@ -168,6 +175,7 @@ fn main() -> ExitCode {
         Command::Merge(args) => app::merge(args),
         Command::Farm(args) => app::farm(args),
         Command::Info { scene } => app::info(&scene),
+        Command::UsdProbe { path } => app::usd_probe(&path),
     };
     match result {
         Ok(code) => code,

@@ -23,6 +23,33 @@ fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
+/// How old a temp file of [`write_atomic`] must be before [`sweep_temps`] removes it: no
+/// write takes this long, so its writer was killed (or its machine died).
+pub const STALE_TEMP: std::time::Duration = std::time::Duration::from_secs(3600);
+
+/// Removes the temp files killed writers left in `dir` (older than `age`); another
+/// process's write in flight is younger and is left alone. Best effort.
+pub fn sweep_temps(dir: &Path, age: std::time::Duration) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let now = std::time::SystemTime::now();
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        if !(name.starts_with('.') && name.ends_with(".tmp")) {
+            continue;
+        }
+        let old = e
+            .metadata()
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| now.duration_since(t).is_ok_and(|d| d >= age));
+        if old {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
 /// Writes via `write` into a temp file beside `path`, then renames it over `path`.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let tmp = temp_path(path);
@@ -253,6 +280,16 @@ mod tests {
         assert_eq!(read_exr(&path).unwrap().pixels, img.pixels);
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
         write_png(&dir.join("a.png"), &img, 0.0).unwrap();
+        // A killed writer's temp file goes once it is stale, a fresh one stays.
+        let (stale, fresh) = (dir.join(".a.exr.1.tmp"), dir.join(".a.exr.2.tmp"));
+        for t in [&stale, &fresh] {
+            std::fs::write(t, b"half").unwrap();
+        }
+        let f = std::fs::File::options().write(true).open(&stale).unwrap();
+        f.set_modified(std::time::SystemTime::now() - 2 * STALE_TEMP)
+            .unwrap();
+        sweep_temps(&dir, STALE_TEMP);
+        assert!(!stale.exists() && fresh.exists() && path.exists());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

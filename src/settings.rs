@@ -74,6 +74,46 @@ impl Default for RenderSettings {
     }
 }
 
+/// Largest image side, pixel count and light paths per pass: a scene or flag asking for
+/// more gets an error instead of an out-of-memory kill. A pixel holds about 200 bytes
+/// across the film and the camera paths, a light path a few 48-byte beams and photons, so
+/// both limits stay within a few GiB.
+pub const MAX_SIDE: u32 = 16384;
+pub const MAX_PIXELS: u64 = 1 << 26;
+pub const MAX_LIGHT_PATHS: usize = 1 << 24;
+
+impl RenderSettings {
+    /// What is wrong with the image size or the light-path count, if anything: the
+    /// setting's name and the message.
+    pub fn limits_error(&self) -> Option<(&'static str, String)> {
+        for (field, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > MAX_SIDE {
+                return Some((field, format!("expected 1..={MAX_SIDE} pixels, got {v}")));
+            }
+        }
+        let pixels = self.width as u64 * self.height as u64;
+        if pixels > MAX_PIXELS {
+            return Some((
+                "width",
+                format!(
+                    "{}x{} is {pixels} pixels, more than the {MAX_PIXELS} ppb renders",
+                    self.width, self.height
+                ),
+            ));
+        }
+        if self.light_paths == 0 || self.light_paths > MAX_LIGHT_PATHS {
+            return Some((
+                "light_paths",
+                format!(
+                    "expected 1..={MAX_LIGHT_PATHS} light paths per pass (more passes give more), got {}",
+                    self.light_paths
+                ),
+            ));
+        }
+        None
+    }
+}
+
 /// Default alpha of the surface photons (README: measured against the beams' 0.9).
 pub const DEFAULT_PHOTON_ALPHA: f32 = 0.9;
 

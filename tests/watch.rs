@@ -223,3 +223,99 @@ fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
     assert!(w.alive());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// 100 random edits while `ppb watch` runs: truncated and garbage scene files, files
+/// caught half-written, assets deleted, truncated and re-created, scenes renamed away and
+/// back. It never dies, the output is always a complete EXR, and every tenth edit
+/// restores a good scene (with another light) that the output then shows.
+#[test]
+fn soak_of_random_edits() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/conformance");
+    let dir = common::temp_dir("watch", "soak");
+    write_floor(&dir);
+    let vdb = std::fs::read(root.join("smoke-grid/density.vdb")).unwrap();
+    let floor = std::fs::read(dir.join("floor.obj")).unwrap();
+    std::fs::write(dir.join("density.vdb"), &vdb).unwrap();
+    let grid = "[[medium]]\ntype = \"grid\"\npath = \"density.vdb\"\ngrid = \"density\"\ndensity_scale = 4.0\nalbedo = [0.9, 0.9, 0.9]";
+    let good = |i: f32| scene_text(&point_light(i), grid);
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, good(20.0)).unwrap();
+    let out = dir.join("out.exr");
+    let cache = dir.join("cache");
+    let mut w = Watch::start(&scene, &out, &["--cache-dir", cache.to_str().unwrap()]);
+    w.wait("the first output", |w| w.count("preview") >= 1);
+    let base = mean(&out).unwrap();
+    let t0 = Instant::now();
+    let mut rng = 0x2545_f491_4f6c_dd1du64;
+    let mut next = |n: u64| {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng % n
+    };
+    let mut restores = 0;
+    for edit in 1..=100 {
+        let text = good(20.0).into_bytes();
+        match next(8) {
+            0 => std::fs::write(&scene, &text[..next(text.len() as u64) as usize]).unwrap(),
+            1 => {
+                let junk: Vec<u8> = (0..next(400)).map(|_| next(256) as u8).collect();
+                std::fs::write(&scene, junk).unwrap()
+            }
+            2 => {
+                std::fs::write(&scene, &text[..text.len() / 2]).unwrap();
+                std::thread::sleep(Duration::from_millis(next(60)));
+                std::fs::write(&scene, &text).unwrap();
+            }
+            3 => {
+                std::fs::remove_file(dir.join("density.vdb")).ok();
+                std::thread::sleep(Duration::from_millis(next(150)));
+                std::fs::write(dir.join("density.vdb"), &vdb).unwrap();
+            }
+            4 => std::fs::write(
+                dir.join("density.vdb"),
+                &vdb[..next(vdb.len() as u64) as usize],
+            )
+            .unwrap(),
+            5 => std::fs::write(dir.join("floor.obj"), b"v 1 2\nf 1 2 9\n").unwrap(),
+            6 => {
+                let away = dir.join("away.toml");
+                std::fs::rename(&scene, &away).unwrap();
+                std::thread::sleep(Duration::from_millis(next(150)));
+                std::fs::rename(&away, &scene).unwrap();
+            }
+            _ => {
+                std::fs::remove_file(dir.join("floor.obj")).ok();
+                std::thread::sleep(Duration::from_millis(next(100)));
+                std::fs::write(dir.join("floor.obj"), &floor).unwrap();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(30 + next(120)));
+        assert!(w.alive(), "ppb watch died after edit {edit}:\n{}", w.log());
+        mean(&out);
+        if edit % 10 == 0 {
+            // A good scene again, 4x brighter or back to the base light.
+            restores += 1;
+            let bright = restores % 2 == 1;
+            std::fs::write(dir.join("density.vdb"), &vdb).unwrap();
+            std::fs::write(dir.join("floor.obj"), &floor).unwrap();
+            save_by_rename(&scene, good(if bright { 80.0 } else { 20.0 }).as_bytes());
+            // `wait` fails at once if the process ends.
+            w.wait("the restored scene", |_| {
+                let m = mean(&out).unwrap();
+                if bright {
+                    m > 2.5 * base
+                } else {
+                    m < 1.6 * base
+                }
+            });
+        }
+    }
+    assert!(w.alive());
+    eprintln!(
+        "soak: 100 edits, {restores} restores in {:.1} s, {} reloads",
+        t0.elapsed().as_secs_f64(),
+        w.count("reload")
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -353,6 +353,7 @@ fn render_job(
         .then(|| part_path(&out, args.shard.part_dir.as_ref(), job.passes));
     if let Some(d) = part.as_ref().and_then(|p| p.parent()) {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
+        ppb::output::sweep_temps(d, ppb::output::STALE_TEMP);
     }
     let resumed = match (&part, &mut header) {
         (Some(path), Some(h)) => existing_part(path, h, quiet),

@@ -126,6 +126,7 @@ pub fn load(dir: &Path, g: &GridMedium, max_depth: u32) -> (Status, Option<Octre
 /// Writes the octree atomically into `dir` (created if needed); returns the file path.
 pub fn store(dir: &Path, g: &GridMedium, max_depth: u32, tree: &Octree) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    crate::output::sweep_temps(dir, crate::output::STALE_TEMP);
     let k = key(g, max_depth);
     let path = path_for(dir, &k);
     let bytes = encode(tree, &k);

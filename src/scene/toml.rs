@@ -562,13 +562,8 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
             format!("expected 1..={MAX_TR_SAMPLES}, got {}", s.tr_samples),
         ));
     }
-    for (field, v) in [("render.width", s.width), ("render.height", s.height)] {
-        if v == 0 || v > 16384 {
-            return Err(ck.err(field, format!("expected 1..=16384 pixels, got {v}")));
-        }
-    }
-    if s.light_paths == 0 {
-        return Err(ck.err("render.light_paths", "expected at least 1".into()));
+    if let Some((field, msg)) = s.limits_error() {
+        return Err(ck.err(&format!("render.{field}"), msg));
     }
     for (field, a) in [
         ("render.alpha", s.alpha),

@@ -47,21 +47,48 @@ const SPHERE_SEGMENTS: u32 = 48;
 
 /// Loads a USD stage as an [`Imported`] set of world-space meshes, lights, camera and
 /// grid media. The `openusd` crate is run under `catch_unwind`, so a file that makes
-/// it panic is reported as a format error instead of taking the process down. Known
-/// gap: a .usdc whose corrupted counts ask the crate for a huge allocation aborts the
-/// process (allocation failure is not a panic), which no wrapper here can catch.
+/// it panic is reported as a format error; a corrupt .usdc whose counts ask the crate
+/// for a huge allocation would abort the process (allocation failure is not a panic),
+/// so when a [`Probe`] is installed ([`set_probe`]; `ppb` installs one that parses the
+/// stage in a child process first) the stage is parsed here only after it succeeded.
 pub fn load_usd(path: &Path) -> Result<Imported> {
     read_usd(path, &Files::new())
+}
+
+/// Parses a stage before this process does; an error stops the load.
+pub type Probe = fn(&Path) -> Result<()>;
+
+static PROBE: std::sync::OnceLock<Probe> = std::sync::OnceLock::new();
+
+/// Installs the probe every later [`read_usd`] runs first (once per process).
+pub fn set_probe(probe: Probe) {
+    let _ = PROBE.set(probe);
 }
 
 /// [`load_usd`] reading the stage's layers and its volumes' VDBs through `files`: each
 /// is read from disk once per load, however often the USD reader opens it.
 pub fn read_usd(path: &Path, files: &Files) -> Result<Imported> {
+    if let Some(probe) = PROBE.get() {
+        probe(path)?;
+    }
+    guarded(path, |path_str| import(path, path_str, files, false))
+}
+
+/// Parses the stage's layers and reads every prim as [`read_usd`] does, without loading
+/// VDB assets: what a probe's child process runs.
+pub fn probe_usd(path: &Path) -> Result<()> {
+    guarded(path, |path_str| {
+        import(path, path_str, &Files::new(), true).map(|_| ())
+    })
+}
+
+/// Runs the USD reader on `path` with its panics turned into format errors.
+fn guarded<T>(path: &Path, f: impl FnOnce(&str) -> Result<T>) -> Result<T> {
     std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     let path_str = path
         .to_str()
         .ok_or_else(|| Error::format(path, "the path is not valid UTF-8"))?;
-    let run = std::panic::AssertUnwindSafe(|| import(path, path_str, files));
+    let run = std::panic::AssertUnwindSafe(|| f(path_str));
     match std::panic::catch_unwind(run) {
         Ok(r) => r,
         Err(p) => {
@@ -75,7 +102,7 @@ pub fn read_usd(path: &Path, files: &Files) -> Result<Imported> {
     }
 }
 
-fn import(path: &Path, path_str: &str, files: &Files) -> Result<Imported> {
+fn import(path: &Path, path_str: &str, files: &Files, probe: bool) -> Result<Imported> {
     let resolver = ReadOnce {
         inner: ar::DefaultResolver::new(),
         files: files.clone(),
@@ -100,6 +127,7 @@ fn import(path: &Path, path_str: &str, files: &Files) -> Result<Imported> {
         world: HashMap::new(),
         materials: HashMap::new(),
         out: Imported::default(),
+        probe,
     };
     ctx.root = ctx.stage_root()?;
     for p in &prims {
@@ -127,6 +155,8 @@ struct Ctx<'a> {
     world: HashMap<sdf::Path, DMat4>,
     materials: HashMap<String, usize>,
     out: Imported,
+    /// Reading prims only: VDB assets are not loaded.
+    probe: bool,
 }
 
 /// Structural prim types that carry nothing to render by themselves.
@@ -767,11 +797,6 @@ impl<'a> Ctx<'a> {
         let file = self.asset_path(&field, "filePath")?;
         let name = self.token(&field, "fieldName")?.filter(|s| !s.is_empty());
         let name = name.unwrap_or(rel);
-        // An OpenVDBAsset is OpenVDB by its schema, whatever the file's extension.
-        let cannot = |e: Error| self.err(&field, format!("cannot load the VDB: {e}"));
-        let bytes = self.files.read(&file).map_err(cannot)?;
-        let grid = crate::media::openvdb::load_grid_from(&file, &bytes, &name).map_err(cannot)?;
-        let mut h = self.files.hasher(&file)?;
         let spec = MediumSpec {
             density_scale: self.f64_opt(p, "ppb:densityScale")?.map(|x| x as f32),
             albedo: self.vec3_opt(p, "ppb:albedo")?.map(|a| a.map(|x| x as f32)),
@@ -780,6 +805,14 @@ impl<'a> Ctx<'a> {
             ..Default::default()
         };
         let mp = spec.check(self.path, usd_field(p))?;
+        if self.probe {
+            return Ok(());
+        }
+        // An OpenVDBAsset is OpenVDB by its schema, whatever the file's extension.
+        let cannot = |e: Error| self.err(&field, format!("cannot load the VDB: {e}"));
+        let bytes = self.files.read(&file).map_err(cannot)?;
+        let grid = crate::media::openvdb::load_grid_from(&file, &bytes, &name).map_err(cannot)?;
+        let mut h = self.files.hasher(&file)?;
         let (scale, xf) = (mp.density_scale, mp.transform);
         self.out.files.push(file.clone());
         h.update(format!("{name} {scale} {xf:?}").as_bytes());
