@@ -394,10 +394,15 @@ fn plan_progress_and_exit_codes() {
     assert!(stderr(&o).contains("tasks 0..=1"), "{}", stderr(&o));
 }
 
-/// Whether a farm tool is here; without it the test is skipped, unless CI requires it.
+/// Whether a farm tool is here (for Slurm: a cluster that answers); without it the test
+/// is skipped, unless CI requires it.
 fn have(tool: &str, test: &str) -> bool {
+    let probe = match tool {
+        "sbatch" => "sinfo -h >/dev/null 2>&1".to_string(),
+        t => format!("command -v {t}"),
+    };
     let found = Command::new("sh")
-        .args(["-c", &format!("command -v {tool}")])
+        .args(["-c", &probe])
         .output()
         .is_ok_and(|o| o.status.success());
     if !found {
@@ -433,17 +438,26 @@ fn farm(engine: &str, dir: &Path, scene: &Path, extra: &[&str]) -> PathBuf {
     jobs
 }
 
+/// An engine test's set-up, or None (skipped) without `tool`: the folder, the scene, one
+/// machine's bits of frame 16 and the folder of the job files.
+fn setup(tool: &str, engine: &str, test: &str) -> Option<(PathBuf, PathBuf, Vec<u32>, PathBuf)> {
+    if !have(tool, test) {
+        return None;
+    }
+    let (dir, scene) = sequence(engine);
+    let want = single(&scene, &dir.join("one/s.####.exr"), 5);
+    let jobs = farm(engine, &dir, &scene, &[]);
+    Some((dir, scene, want, jobs))
+}
+
 /// A real Slurm array of 6 tasks and its merge: the frames equal one machine's renders bit
 /// for bit; with a task made to fail, submit.sh exits non-zero and the merge never runs.
 #[test]
 fn slurm_array_and_merge() {
-    if !have("sbatch", "slurm_array_and_merge") {
+    let Some((dir, scene, want, jobs)) = setup("sbatch", "slurm", "slurm_array_and_merge") else {
         return;
-    }
-    let (dir, scene) = sequence("slurm");
-    let want = single(&scene, &dir.join("one/s.####.exr"), 5);
+    };
     let t0 = Instant::now();
-    let jobs = farm("slurm", &dir, &scene, &[]);
     let o = ok(Command::new("bash").arg(jobs.join("submit.sh")));
     eprintln!(
         "slurm: 6 tasks and a merge in {:.1} s",
@@ -483,12 +497,9 @@ fn slurm_array_and_merge() {
 /// the merge, to the single-machine bits.
 #[test]
 fn openjd_template_runs() {
-    if !have("openjd", "openjd_template_runs") {
+    let Some((_, _, want, jobs)) = setup("openjd", "openjd", "openjd_template_runs") else {
         return;
-    }
-    let (dir, scene) = sequence("openjd");
-    let want = single(&scene, &dir.join("one/s.####.exr"), 5);
-    let jobs = farm("openjd", &dir, &scene, &[]);
+    };
     let template = jobs.join("job.template.yaml");
     ok(Command::new("openjd").arg("check").arg(&template));
     let t0 = Instant::now();
@@ -507,12 +518,13 @@ fn openjd_template_runs() {
 /// single-machine bits.
 #[test]
 fn k8s_jobs_validate_and_run_by_index() {
-    if !have("kubernetes-validate", "k8s_jobs_validate_and_run_by_index") {
+    let Some((dir, _, want, jobs)) = setup(
+        "kubernetes-validate",
+        "k8s",
+        "k8s_jobs_validate_and_run_by_index",
+    ) else {
         return;
-    }
-    let (dir, scene) = sequence("k8s");
-    let want = single(&scene, &dir.join("one/s.####.exr"), 5);
-    let jobs = farm("k8s", &dir, &scene, &[]);
+    };
     let (render, merge) = (jobs.join("render-job.yaml"), jobs.join("merge-job.yaml"));
     ok(Command::new("kubernetes-validate")
         .args(["--strict", "-k", "1.33.0"])
