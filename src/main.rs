@@ -135,7 +135,11 @@ Example:\n  ppb farm slurm scenes/mantaflow/smoke.toml --frames 16-48 --passes 2
     /// Parse a USD stage and exit (ppb runs it in a child process before it parses a
     /// stage itself, so a crash in the USD reader cannot take a render down).
     #[command(name = "__usd-probe", hide = true)]
-    UsdProbe { path: PathBuf },
+    UsdProbe {
+        path: PathBuf,
+        #[arg(long)]
+        frame: Option<u32>,
+    },
     /// Print what a scene file contains.
     Info {
         /// Scene file (.toml).
@@ -175,7 +179,7 @@ fn main() -> ExitCode {
         Command::Merge(args) => app::merge(args),
         Command::Farm(args) => app::farm(args),
         Command::Info { scene } => app::info(&scene),
-        Command::UsdProbe { path } => app::usd_probe(&path),
+        Command::UsdProbe { path, frame } => app::usd_probe(&path, frame),
     };
     match result {
         Ok(code) => code,

@@ -572,3 +572,73 @@ print(json.dumps({"n": spec.get("completions", 1), "cmd": pod["containers"][0]["
     exec(&m, None);
     assert_eq!(bits(&jobs.join("out/smoke.0016.exr")), want);
 }
+
+/// The frame token inside a USD stage: a sublayer named per frame and an OpenVDBAsset
+/// path, both with ####, resolve to the frame's files.
+#[test]
+fn frames_reach_usd_layers_and_assets() {
+    let (dir, _) = sequence("usd");
+    let shot = dir.join("shot");
+    for f in [16, 32] {
+        std::fs::write(
+            shot.join(format!("light.{f:04}.usda")),
+            format!(
+                "#usda 1.0\n(\n    upAxis = \"Y\"\n)\n\ndef DistantLight \"Sun\"\n{{\n    float inputs:intensity = {}\n    float3 xformOp:rotateXYZ = (-60, 20, 0)\n    uniform token[] xformOpOrder = [\"xformOp:rotateXYZ\"]\n}}\n",
+                f / 16
+            ),
+        )
+        .unwrap();
+    }
+    std::fs::write(
+        shot.join("stage.usda"),
+        r#"#usda 1.0
+(
+    subLayers = [@./light.####.usda@]
+    metersPerUnit = 1
+    upAxis = "Z"
+)
+
+def Volume "Smoke"
+{
+    custom rel field:density = </Smoke/density>
+    float ppb:densityScale = 20
+
+    def OpenVDBAsset "density"
+    {
+        token fieldName = "density"
+        asset filePath = @./manta_smoke_####.vdb@
+    }
+}
+"#,
+    )
+    .unwrap();
+    std::fs::write(
+        shot.join("stage.ppb.toml"),
+        "[render]\npasses = 1\n\n[camera]\norigin = [0, 1.2, 4.2]\ntarget = [0, 0.9, 0]\nup = [0, 1, 0]\nvfov = 40\n",
+    )
+    .unwrap();
+    let out = dir.join("out/usd.####.exr");
+    ok(ppb()
+        .arg("render")
+        .arg(shot.join("stage.usda"))
+        .args(["--frames", "16,32", "-q", "-o"])
+        .arg(&out)
+        .args(FAST));
+    let mean = |f: u32| -> f64 {
+        let p = ppb::farm::with_frame(&out.to_string_lossy(), f);
+        let img = ppb::output::read_exr(Path::new(&p)).unwrap();
+        img.pixels.iter().flatten().map(|&x| x as f64).sum::<f64>() / img.pixels.len() as f64
+    };
+    let (a, b) = (mean(16), mean(32));
+    // Frame 32's sun is twice as bright, and its smoke another grid.
+    assert!(a > 0.0 && b > 1.3 * a, "{a} {b}");
+    // Without --frames the token names no file: one clear error.
+    let o = run(ppb()
+        .arg("render")
+        .arg(shot.join("stage.usda"))
+        .args(["-q", "-o"])
+        .arg(dir.join("none.exr"))
+        .args(FAST));
+    assert_eq!(code(&o), 2, "{}", stderr(&o));
+    assert!(stderr(&o).contains("####"), "{}", stderr(&o));
+}

@@ -9,12 +9,15 @@ use std::process::{Command, Stdio};
 use ppb::error::{Error, Result};
 
 /// The probe `ppb::scene::usd` runs before parsing a stage in this process.
-pub fn probe_in_child(path: &Path) -> Result<()> {
+pub fn probe_in_child(path: &Path, frame: Option<u32>) -> Result<()> {
     let exe = std::env::current_exe()
         .map_err(|e| Error::Other(format!("finding ppb to check {}: {e}", path.display())))?;
-    let out = Command::new(exe)
-        .arg("__usd-probe")
-        .arg(path)
+    let mut cmd = Command::new(exe);
+    cmd.arg("__usd-probe").arg(path);
+    if let Some(f) = frame {
+        cmd.args(["--frame", &f.to_string()]);
+    }
+    let out = cmd
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -57,9 +60,9 @@ fn describe(status: &std::process::ExitStatus) -> String {
 
 /// `ppb __usd-probe PATH`: parses the stage with the address space capped at half the
 /// physical memory; exits 0, or 2 with the error on stderr (or dies).
-pub fn usd_probe(path: &Path) -> anyhow::Result<std::process::ExitCode> {
+pub fn usd_probe(path: &Path, frame: Option<u32>) -> anyhow::Result<std::process::ExitCode> {
     cap_address_space();
-    ppb::scene::usd::probe_usd(path)?;
+    ppb::scene::usd::probe_usd(path, frame)?;
     Ok(std::process::ExitCode::SUCCESS)
 }
 

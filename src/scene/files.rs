@@ -38,6 +38,8 @@ struct State {
     seen: HashMap<PathBuf, Seen>,
     /// This load: files read from disk, in order.
     read: Vec<PathBuf>,
+    /// The frame this load renders: the frame token in USD asset paths becomes it.
+    frame: Option<u32>,
 }
 
 #[derive(Clone)]
@@ -77,6 +79,23 @@ fn key(path: &Path) -> PathBuf {
 impl Files {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// Sets the frame of the loads that follow (None: paths as written).
+    pub fn set_frame(&self, frame: Option<u32>) {
+        self.state().frame = frame;
+    }
+
+    pub fn frame(&self) -> Option<u32> {
+        self.state().frame
+    }
+
+    /// `path` with the frame token replaced by the load's frame, if it has one.
+    pub fn at_frame(&self, path: &str) -> String {
+        match self.frame() {
+            Some(f) if crate::farm::frames::has_token(path) => crate::farm::with_frame(path, f),
+            _ => path.to_string(),
+        }
     }
 
     fn state(&self) -> MutexGuard<'_, State> {

@@ -371,6 +371,7 @@ impl FileScene {
 
 fn load_with(path: &Path, cache: &mut AssetCache, frame: Option<u32>) -> Result<SceneFile> {
     cache.begin();
+    cache.files().set_frame(frame);
     let file = (|| match Format::of_scene(path)? {
         Format::Usd => load_usd_scene_cached(path, cache),
         _ => {

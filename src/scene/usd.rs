@@ -55,8 +55,8 @@ pub fn load_usd(path: &Path) -> Result<Imported> {
     read_usd(path, &Files::new())
 }
 
-/// Parses a stage before this process does; an error stops the load.
-pub type Probe = fn(&Path) -> Result<()>;
+/// Parses a stage (at a frame) before this process does; an error stops the load.
+pub type Probe = fn(&Path, Option<u32>) -> Result<()>;
 
 static PROBE: std::sync::OnceLock<Probe> = std::sync::OnceLock::new();
 
@@ -69,16 +69,18 @@ pub fn set_probe(probe: Probe) {
 /// is read from disk once per load, however often the USD reader opens it.
 pub fn read_usd(path: &Path, files: &Files) -> Result<Imported> {
     if let Some(probe) = PROBE.get() {
-        probe(path)?;
+        probe(path, files.frame())?;
     }
     guarded(path, |path_str| import(path, path_str, files, false))
 }
 
-/// Parses the stage's layers and reads every prim as [`read_usd`] does, without loading
-/// VDB assets: what a probe's child process runs.
-pub fn probe_usd(path: &Path) -> Result<()> {
+/// Parses the stage's layers and reads every prim as [`read_usd`] does at `frame`,
+/// without loading VDB assets: what a probe's child process runs.
+pub fn probe_usd(path: &Path, frame: Option<u32>) -> Result<()> {
+    let files = Files::new();
+    files.set_frame(frame);
     guarded(path, |path_str| {
-        import(path, path_str, &Files::new(), true).map(|_| ())
+        import(path, path_str, &files, true).map(|_| ())
     })
 }
 
@@ -861,9 +863,9 @@ impl<'a> Ctx<'a> {
             _ => return Err(self.err(p, format!("{name}: no asset path"))),
         };
         if let Some(r) = a.resolved_path().filter(|r| !r.is_empty()) {
-            return Ok(PathBuf::from(r));
+            return Ok(PathBuf::from(self.files.at_frame(r)));
         }
-        Ok(self.dir.join(&a.authored_path))
+        Ok(self.dir.join(self.files.at_frame(&a.authored_path)))
     }
 }
 
@@ -1066,8 +1068,10 @@ impl ReadOnce {
 }
 
 impl ar::Resolver for ReadOnce {
+    /// The frame token in a layer or asset path becomes the load's frame.
     fn create_identifier(&self, asset_path: &str, anchor: Option<&ar::ResolvedPath>) -> String {
-        self.inner.create_identifier(asset_path, anchor)
+        self.inner
+            .create_identifier(&self.files.at_frame(asset_path), anchor)
     }
 
     /// As the default resolver: a packaged path resolves when its package does and,
