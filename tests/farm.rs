@@ -579,6 +579,9 @@ print(json.dumps({"n": spec.get("completions", 1), "cmd": pod["containers"][0]["
 fn frames_reach_usd_layers_and_assets() {
     let (dir, _) = sequence("usd");
     let shot = dir.join("shot");
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let vdb48 = "manta_smoke_0048.vdb";
+    std::fs::copy(repo.join("scenes/mantaflow").join(vdb48), shot.join(vdb48)).unwrap();
     for f in [16, 32] {
         std::fs::write(
             shot.join(format!("light.{f:04}.usda")),
@@ -618,6 +621,17 @@ def Volume "Smoke"
     )
     .unwrap();
     let out = dir.join("out/usd.####.exr");
+    // Frame 48 has its grid but no light layer: refused before any frame renders.
+    let o = run(ppb()
+        .arg("render")
+        .arg(shot.join("stage.usda"))
+        .args(["--frames", "16,32,48", "-q", "-o"])
+        .arg(&out)
+        .args(FAST));
+    assert_eq!(code(&o), 2, "{}", stderr(&o));
+    assert!(stderr(&o).contains("frame 48"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("light.0048.usda"), "{}", stderr(&o));
+    assert!(!dir.join("out").exists());
     ok(ppb()
         .arg("render")
         .arg(shot.join("stage.usda"))

@@ -298,7 +298,9 @@ pub fn check_frames(path: &Path, frames: &[u32]) -> Result<()> {
                 scene.display()
             )));
         }
+        let frame_err = |e: Error| Error::Other(format!("frame {f}: {e}"));
         if Format::of_scene(&scene)? == Format::Usd {
+            super::usd::check_frame(&scene, f).map_err(frame_err)?;
             continue;
         }
         let text = std::fs::read_to_string(&scene).map_err(|e| Error::io(&scene, e))?;
@@ -312,6 +314,9 @@ pub fn check_frames(path: &Path, frames: &[u32]) -> Result<()> {
                     field,
                     format!("frame {f}: {} does not exist", p.display()),
                 ));
+            }
+            if Format::detect(&p) == Some(Format::Usd) {
+                super::usd::check_frame(&p, f).map_err(frame_err)?;
             }
         }
     }

@@ -84,6 +84,16 @@ pub fn probe_usd(path: &Path, frame: Option<u32>) -> Result<()> {
     })
 }
 
+/// Checks that frame `frame` of a stage composes and that the VDB files it names exist,
+/// through the installed [`Probe`] (without one, nothing is checked here: the load will
+/// tell).
+pub fn check_frame(path: &Path, frame: u32) -> Result<()> {
+    match PROBE.get() {
+        Some(probe) => probe(path, Some(frame)),
+        None => Ok(()),
+    }
+}
+
 /// Runs the USD reader on `path` with its panics turned into format errors.
 fn guarded<T>(path: &Path, f: impl FnOnce(&str) -> Result<T>) -> Result<T> {
     std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
@@ -137,6 +147,8 @@ fn import(path: &Path, path_str: &str, files: &Files, probe: bool) -> Result<Imp
     }
     // Prims are indexed lazily, so arcs to missing layers surface only after the walk.
     if let Some(e) = stage.composition_errors().first() {
+        // Paths in the message as this frame resolved them.
+        let e = files.at_frame(&e.to_string());
         return Err(Error::format(path, format!("composition error: {e}")));
     }
     let mut out = ctx.out;
@@ -808,6 +820,9 @@ impl<'a> Ctx<'a> {
         };
         let mp = spec.check(self.path, usd_field(p))?;
         if self.probe {
+            if !file.is_file() {
+                return Err(self.err(&field, format!("{} does not exist", file.display())));
+            }
             return Ok(());
         }
         // An OpenVDBAsset is OpenVDB by its schema, whatever the file's extension.
