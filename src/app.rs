@@ -182,11 +182,51 @@ fn load_scene(path: &Path) -> Result<SceneFile> {
 /// Loads frame `frame` of a scene (the frame token in its paths replaced) and prints its
 /// warnings on stderr.
 fn load_frame(path: &Path, frame: Option<u32>) -> Result<SceneFile> {
+    if !path.exists() && !path.to_string_lossy().contains('#') {
+        let hint = nearest_scene(path)
+            .map(|s| format!(" (did you mean {}?)", s.display()))
+            .unwrap_or_default();
+        anyhow::bail!("{}: no such scene file{hint}", path.display());
+    }
     let file = scene_toml::load_frame(path, frame)?;
     for w in &file.warnings {
         eprintln!("warning: {w}");
     }
     Ok(file)
+}
+
+/// The shipped scene (under `scenes/` here or in the source tree ppb was built from)
+/// whose path is closest to `path` in edit distance, if any is close.
+fn nearest_scene(path: &Path) -> Option<PathBuf> {
+    let wanted = path.to_string_lossy();
+    let mut best: Option<(f64, PathBuf)> = None;
+    let roots = [
+        PathBuf::from("scenes"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes"),
+    ];
+    for root in roots.iter().filter(|r| r.is_dir()) {
+        let mut stack = vec![(root.clone(), 0)];
+        while let Some((dir, depth)) = stack.pop() {
+            let Ok(entries) = std::fs::read_dir(&dir) else {
+                continue;
+            };
+            for e in entries.flatten() {
+                let p = e.path();
+                if p.is_dir() && depth < 3 {
+                    stack.push((p, depth + 1));
+                } else if p.extension().is_some_and(|x| x == "toml" || x == "usda") {
+                    let score = strsim::normalized_levenshtein(&wanted, &p.to_string_lossy());
+                    if best.as_ref().is_none_or(|(b, _)| score > *b) {
+                        best = Some((score, p));
+                    }
+                }
+            }
+        }
+        if best.is_some() {
+            break;
+        }
+    }
+    best.filter(|(score, _)| *score > 0.6).map(|(_, p)| p)
 }
 
 /// Sets the worker thread count (default: all cores).

@@ -28,7 +28,8 @@ RGB, with passes, seconds and settings in the header) and a PNG preview beside i
 Radii: `beam_radius = \"auto\"` sets R1 to 1 pixel footprint at the distance from the camera to \
 the centre of the media's bounds; `photon_radius = \"auto\"` sets R1 to 3 pixel footprints at the \
 distance to the centre of the surfaces' bounds. Both then shrink every pass by eq. 3 \
-(beam radius, and photon radius squared, times (i + alpha) / (i + 1))."
+(beam radius, and photon radius squared, times (i + alpha) / (i + 1)).",
+        after_help = "Examples:\n  ppb render scenes/conformance/fog-box/scene.toml -o out/fog-box.exr\n  ppb render scenes/conformance/smoke-grid/scene.toml --time 60 --stats out/stats.json\n  ppb render scenes/mantaflow/smoke.toml --frames 16,32,48 -o out/smoke.####.exr"
     )]
     Render(app::RenderArgs),
     /// Live preview: re-render progressively whenever the scene or an asset it uses changes.
@@ -55,14 +56,16 @@ EXR and PNG are rewritten atomically (after the first pass of each reload, then 
 --window shows the image live (Vulkan through wgpu; title: passes, time, device, exposure, last error; keys: \
 +/- exposure, S snapshot to <output>-snapshot-N.exr/png, Esc/Q quit). Without a display it \
 prints an error and keeps writing the files. The terminal shows one status line: scene, pass, \
-passes per second, the last reload and what it reloaded."
+passes per second, the last reload and what it reloaded.",
+        after_help = "Examples:\n  ppb watch scenes/noise-cloud/scene.toml --window\n  ppb watch shot.usda -o out/preview.exr --checkpoint 2s"
     )]
     Watch(app::WatchArgs),
     /// Compare two EXR images: rel_l1, relative RMSE, per-channel means.
     #[command(
         long_about = "Compare a candidate EXR against a reference EXR. Prints rel_l1 = \
 sum|a - ref| / sum|ref| over all pixels and channels, relative RMSE and per-channel means. Exits 1 \
-when rel_l1 exceeds --max-rel-l1, so CI pipelines can guard artifact renders."
+when rel_l1 exceeds --max-rel-l1, so CI pipelines can guard artifact renders.",
+        after_help = "Example:\n  ppb compare out/fog-box.exr tests/data/conformance/fog-box/reference.exr --max-rel-l1 0.05"
     )]
     Compare(app::CompareArgs),
     /// Bake the majorant octrees of a scene's grid media into the cache.
@@ -71,14 +74,16 @@ when rel_l1 exceeds --max-rel-l1, so CI pipelines can guard artifact renders."
 the cache folder (default .ppb-cache/ beside the scene). The cache key is a blake3 hash of the \
 grid file's bytes, the grid name, density scale and transform, the build settings and the cache \
 format version. `ppb render` loads a valid cache and otherwise builds and stores it. With --check, \
-print fresh or stale per medium and exit 1 if any is stale."
+print fresh or stale per medium and exit 1 if any is stale.",
+        after_help = "Examples:\n  ppb build scenes/conformance/smoke-grid/scene.toml\n  ppb build scenes/conformance/smoke-grid/scene.toml --check"
     )]
     Build(app::BuildArgs),
     /// Free-path sampling benchmark: free paths and grid lookups per second on scenes.
     #[command(
         long_about = "Renders a few passes of each scene and prints a table of free-path \
 sampling work: free paths, density (grid) lookups, lookups per free path (a machine-independent \
-counter), and free paths and lookups per thread-second."
+counter), and free paths and lookups per thread-second.",
+        after_help = "Example:\n  ppb bench scenes/conformance/smoke-grid/scene.toml scenes/bench/dense-smoke/scene.toml --repeat 3"
     )]
     Bench(app::BenchTableArgs),
     /// Transmittance benchmark: error vs passes and at equal time (the paper's Figs. 11, 12).
@@ -86,7 +91,8 @@ counter), and free paths and lookups per thread-second."
         long_about = "Renders each scene with woodcock+random (the original PPB), \
 woodcock+stratified, adaptive+random, adaptive+stratified and adaptive+ratio, and prints \
 rel_l1 against the reference at each pass count with the wall time, then every configuration's \
-error at the PPB baseline's wall time (log-log interpolation)."
+error at the PPB baseline's wall time (log-log interpolation).",
+        after_help = "Example:\n  ppb bench-tr scenes/conformance/smoke-grid/scene.toml=tests/data/conformance/smoke-grid/reference.exr"
     )]
     BenchTr(app::BenchTrArgs),
     /// GPU vs CPU beam estimate: time per pass, their ratio, crossings per second.
@@ -94,7 +100,8 @@ error at the PPB baseline's wall time (log-log interpolation)."
         long_about = "Traces a few passes of each scene once and runs the beam estimate of each \
 pass on the CPU and on the GPU, printing milliseconds per pass on each, their ratio, beam-segment \
 crossings per pass and per second, the relative L1 difference between the two images and the \
-number of pixels that differ by more than 1e-3."
+number of pixels that differ by more than 1e-3.",
+        after_help = "Example:\n  ppb bench-gpu scenes/conformance/cloud-hg/scene.toml --size 256x256 --passes 8"
     )]
     BenchGpu(app::BenchGpuArgs),
     /// List a render's farm tasks: task index -> frame and pass range.
@@ -141,6 +148,9 @@ Example:\n  ppb farm slurm scenes/mantaflow/smoke.toml --frames 16-48 --passes 2
         frame: Option<u32>,
     },
     /// Print what a scene file contains.
+    #[command(
+        after_help = "Examples:\n  ppb info scenes/conformance/glass-caustic/scene.toml\n  ppb info tests/data/vdb/smoke_plume.vdb"
+    )]
     Info {
         /// Scene file (.toml).
         scene: PathBuf,

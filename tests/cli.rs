@@ -381,3 +381,45 @@ fn no_runtime_dir_noise_when_probing_the_gpu() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A first run: `--version`, an example in every subcommand's help, and a mistyped scene
+/// path answered with the nearest shipped scene.
+#[test]
+fn help_version_and_scene_suggestions() {
+    let o = ppb().arg("--version").output().unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout).trim(),
+        format!("ppb {}", env!("CARGO_PKG_VERSION"))
+    );
+    for c in [
+        "render",
+        "watch",
+        "compare",
+        "build",
+        "bench",
+        "bench-tr",
+        "bench-gpu",
+        "info",
+        "plan",
+        "merge",
+        "farm",
+    ] {
+        let o = ppb().args([c, "--help"]).output().unwrap();
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success() && help.contains("Example"),
+            "{c}: {help}"
+        );
+    }
+    let o = ppb()
+        .args(["render", "scenes/conformance/fogbox/scene.toml"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        e.contains("did you mean scenes/conformance/fog-box/scene.toml?"),
+        "{e}"
+    );
+}
