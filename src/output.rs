@@ -184,25 +184,51 @@ pub fn read_exr_text(path: &Path) -> Result<Vec<(String, String)>> {
     Ok(out)
 }
 
+/// Layers of at most this many pixels are read whatever the file's size.
+const EXR_MIN_PIXEL_LIMIT: u64 = 1 << 22;
+/// Larger layers need at least one file byte per this many pixels: a pixel's samples take
+/// at least 2 bytes (one half channel) and deflate, the strongest of EXR's codecs, packs
+/// at most about 1032 bytes into one.
+const EXR_PIXELS_PER_BYTE: u64 = 1 << 10;
+
 /// Reads the R, G, B channels of the first layer of an EXR.
+///
+/// The header's layer sizes are checked against the file's size first: the pixels are
+/// allocated (12 bytes each) before any is read, so a damaged header claiming, say,
+/// 100000 x 100000 pixels would otherwise ask for 120 GB and abort the process.
 pub fn read_exr(path: &Path) -> Result<Image> {
-    if !path.exists() {
-        return Err(Error::io(
-            path,
-            std::io::Error::new(std::io::ErrorKind::NotFound, "file not found"),
-        ));
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let meta = ::exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+        .map_err(|e| Error::format(path, format!("reading EXR header: {e}")))?;
+    let limit = EXR_MIN_PIXEL_LIMIT.max((bytes.len() as u64).saturating_mul(EXR_PIXELS_PER_BYTE));
+    for h in &meta.headers {
+        let (w, ht) = (h.layer_size.width() as u64, h.layer_size.height() as u64);
+        if w.saturating_mul(ht) > limit {
+            return Err(Error::format(
+                path,
+                format!(
+                    "EXR layer of {w} x {ht} pixels cannot be stored in {} bytes (limit {limit} pixels)",
+                    bytes.len()
+                ),
+            ));
+        }
     }
-    let image = read_first_rgba_layer_from_file(
-        path,
-        |res, _| {
-            let (w, h) = (res.width(), res.height());
-            (w, vec![[0f32; 3]; w * h])
-        },
-        |(w, px), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            px[pos.y() * *w + pos.x()] = [r, g, b];
-        },
-    )
-    .map_err(|e| Error::format(path, format!("reading EXR: {e}")))?;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |res, _| {
+                let (w, h) = (res.width(), res.height());
+                (w, vec![[0f32; 3]; w * h])
+            },
+            |(w, px): &mut (usize, Vec<[f32; 3]>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * *w + pos.x()] = [r, g, b];
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(&bytes))
+        .map_err(|e| Error::format(path, format!("reading EXR: {e}")))?;
     let size = image.layer_data.size;
     Ok(Image {
         width: size.width(),

@@ -45,16 +45,14 @@ pub fn read_gltf(path: &Path, files: &Files) -> Result<Imported> {
     let mut walker = Walker {
         path,
         buffers: &buffers,
-        on_path: vec![false; document.nodes().len()],
+        parent: vec![None; document.nodes().len()],
         default_material: None,
         out: Imported {
             materials: document.materials().map(|m| convert_material(&m)).collect(),
             ..Default::default()
         },
     };
-    for node in scene.nodes() {
-        walker.visit(&node, Mat4::IDENTITY)?;
-    }
+    walker.walk(scene.nodes())?;
     walker.out.files = external_files(path, &document);
     Ok(walker.out)
 }
@@ -195,20 +193,60 @@ fn convert_material(m: &::gltf::Material) -> NamedMaterial {
 struct Walker<'a> {
     path: &'a Path,
     buffers: &'a [buffer::Data],
-    /// Nodes on the current root-to-node path: a cyclic file is refused, not recursed forever.
-    on_path: Vec<bool>,
+    /// Per node: not reached yet (`None`), reached as a scene root (`Some(None)`) or as a
+    /// child of node `p` (`Some(Some(p))`). glTF's node hierarchy is a set of disjoint
+    /// strict trees, so a node reached twice is refused: a cycle, or a node shared by two
+    /// parents (a file of a few hundred bytes could otherwise share nodes so that the walk
+    /// visits them exponentially often).
+    parent: Vec<Option<Option<usize>>>,
     default_material: Option<usize>,
     out: Imported,
 }
 
 impl Walker<'_> {
-    fn visit(&mut self, node: &Node, parent: Mat4) -> Result<()> {
-        let i = node.index();
-        if self.on_path[i] {
-            let msg = "node hierarchy has a cycle";
-            return Err(Error::field(self.path, format!("nodes[{i}]"), msg));
+    /// Depth-first, parents before children and siblings in file order, with an explicit
+    /// stack: a chain of nodes as deep as the file is long cannot overflow the call stack.
+    fn walk<'d>(&mut self, roots: impl Iterator<Item = Node<'d>>) -> Result<()> {
+        let mut stack: Vec<(Node, Option<usize>, Mat4)> =
+            roots.map(|n| (n, None, Mat4::IDENTITY)).collect();
+        stack.reverse();
+        while let Some((node, from, parent)) = stack.pop() {
+            let i = node.index();
+            if self.parent[i].is_some() {
+                return Err(self.reached_twice(i, from));
+            }
+            self.parent[i] = Some(from);
+            let world = self.visit(&node, parent)?;
+            let first = stack.len();
+            stack.extend(node.children().map(|c| (c, Some(i), world)));
+            stack[first..].reverse();
         }
-        self.on_path[i] = true;
+        Ok(())
+    }
+
+    /// Node `i`, already imported, reached again from `from`: a cycle when `i` is an
+    /// ancestor of `from`, else a node with two parents.
+    fn reached_twice(&self, i: usize, from: Option<usize>) -> Error {
+        let mut up = from;
+        let mut steps = 0;
+        while let Some(p) = up {
+            if p == i {
+                let msg = "node hierarchy has a cycle";
+                return Error::field(self.path, format!("nodes[{i}]"), msg);
+            }
+            steps += 1;
+            up = self.parent[p]
+                .flatten()
+                .filter(|_| steps <= self.parent.len());
+        }
+        let msg = "node is reached more than once (two parents, or a scene root that is \
+                   also a child); glTF node hierarchies must be strict trees";
+        Error::field(self.path, format!("nodes[{i}]"), msg)
+    }
+
+    /// Imports what node `node` holds; returns its world transform.
+    fn visit(&mut self, node: &Node, parent: Mat4) -> Result<Mat4> {
+        let i = node.index();
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             self.add_mesh(node, &mesh, world)?;
@@ -226,11 +264,7 @@ impl Walker<'_> {
         if self.out.camera.is_none() {
             self.out.camera = node.camera().and_then(|c| convert_camera(&c, world));
         }
-        for child in node.children() {
-            self.visit(&child, world)?;
-        }
-        self.on_path[i] = false;
-        Ok(())
+        Ok(world)
     }
 
     /// One [`Mesh`] per primitive, named after the node (else the mesh), suffixed `.j` when

@@ -32,15 +32,25 @@ pub fn read_obj(path: &Path, files: &Files) -> Result<Imported> {
     };
     let dir = path.parent().unwrap_or(Path::new(""));
     let mtl_files = std::cell::RefCell::new(Vec::new());
-    let (models, mtl) = tobj::load_obj_buf(&mut &bytes[..], &options, |mtl_path| {
+    let mtl_error = std::cell::RefCell::new(None);
+    let loaded = tobj::load_obj_buf(&mut &bytes[..], &options, |mtl_path| {
         let p = dir.join(mtl_path);
         mtl_files.borrow_mut().push(p.clone());
         match files.read(&p) {
-            Ok(mtl) => tobj::load_mtl_buf(&mut &mtl[..]),
+            Ok(mtl) => match check_mtl(&p, &mtl) {
+                Ok(()) => tobj::load_mtl_buf(&mut &mtl[..]),
+                Err(e) => {
+                    mtl_error.borrow_mut().get_or_insert(e);
+                    Err(tobj::LoadError::MaterialParseError)
+                }
+            },
             Err(_) => Err(tobj::LoadError::OpenFileFailed),
         }
-    })
-    .map_err(|e| Error::format(path, e.to_string()))?;
+    });
+    if let Some(e) = mtl_error.into_inner() {
+        return Err(e);
+    }
+    let (models, mtl) = loaded.map_err(|e| Error::format(path, e.to_string()))?;
 
     let mut out = Imported {
         materials: mtl
@@ -63,6 +73,25 @@ pub fn read_obj(path: &Path, files: &Files) -> Result<Imported> {
         return Err(Error::format(path, "no triangles"));
     }
     Ok(out)
+}
+
+/// Refuses the .mtl lines that make tobj panic instead of returning an error: a colour
+/// (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than three numbers. Lines are split as tobj splits
+/// them (`BufRead::lines`, then whitespace).
+fn check_mtl(path: &Path, mtl: &[u8]) -> Result<()> {
+    for (i, line) in mtl.split(|&b| b == b'\n').enumerate() {
+        let Ok(line) = std::str::from_utf8(line) else {
+            continue;
+        };
+        let mut words = line.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
+            if words.count() < 3 {
+                let msg = format!("line {}: {key} needs three numbers (r g b)", i + 1);
+                return Err(Error::format(path, msg));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Maps an .mtl entry to our material model.

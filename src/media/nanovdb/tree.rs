@@ -68,6 +68,10 @@ const ROOT_TILE_LOG2: u32 = 12;
 /// The grid's leaf lookup table is dense over the leaves' bounding box (4 bytes per 8^3
 /// slot); a tree spread wider than this (512 MiB of table) is refused rather than built.
 const MAX_LEAF_SLOTS: u64 = 1 << 27;
+/// Below [`MAX_LEAF_SLOTS`], the table may also not outgrow the buffer by more than
+/// 4 slots per byte (16 table bytes per buffer byte), with this floor for small grids:
+/// a few leaves far apart would otherwise cost up to 512 MiB for a buffer of kilobytes.
+const MIN_LEAF_SLOTS: u64 = 1 << 22;
 
 struct TreeData {
     /// Byte offsets from the tree to the first leaf, lower, upper node and the root.
@@ -289,10 +293,13 @@ impl<'a> Walk<'a> {
         for i in 0..count {
             let t = root + ROOT_HEADER + i * ROOT_TILE;
             let key = self.b.u64(t)?;
-            if !keys.insert(key) {
-                return Err(format!("root tile {i} repeats key {key:#x}"));
-            }
             let origin = key_origin(key);
+            // Keys that differ only in bits the origin ignores are repeats too.
+            if !keys.insert(origin) {
+                return Err(format!(
+                    "root tile {i} repeats key {key:#x} (origin {origin})"
+                ));
+            }
             let child = self.b.i64(t + 8)?;
             if child != 0 {
                 let pos = offset(root, child)?;
@@ -399,7 +406,7 @@ impl<'a> Walk<'a> {
                 self.active, tree.active_voxels
             ));
         }
-        check_leaf_spread(self.leaf_bounds)?;
+        check_leaf_spread(self.leaf_bounds, self.b.len())?;
         Ok(self.builder.finish())
     }
 }
@@ -417,7 +424,7 @@ fn check_node_origin(b: Bytes, pos: u64, origin: IVec3, log2_span: u32) -> Parse
     Ok(())
 }
 
-fn check_leaf_spread((lo, hi): (IVec3, IVec3)) -> Parse<()> {
+fn check_leaf_spread((lo, hi): (IVec3, IVec3), buffer_len: u64) -> Parse<()> {
     if lo.cmpgt(hi).any() {
         return Ok(());
     }
@@ -425,9 +432,10 @@ fn check_leaf_spread((lo, hi): (IVec3, IVec3)) -> Parse<()> {
     let slots = (d.x as u64)
         .saturating_mul(d.y as u64)
         .saturating_mul(d.z as u64);
-    if slots > MAX_LEAF_SLOTS {
+    let limit = MAX_LEAF_SLOTS.min(MIN_LEAF_SLOTS.max(buffer_len.saturating_mul(4)));
+    if slots > limit {
         return Err(format!(
-            "leaves spread over {} x {} x {} leaf slots, too sparse to load",
+            "leaves spread over {} x {} x {} leaf slots, too sparse to load (limit {limit} for a {buffer_len}-byte grid)",
             d.x, d.y, d.z
         ));
     }

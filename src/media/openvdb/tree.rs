@@ -5,6 +5,7 @@ use super::bytes::{bit, Parse, Reader};
 use super::values::{read_node_values, Storage};
 use crate::media::grid::{GridBuilder, Leaf, Tile};
 use glam::IVec3;
+use std::collections::HashSet;
 
 /// log2 of the side of the root's children (upper internal nodes), in voxels.
 const ROOT_CHILD_LOG2: i32 = 12;
@@ -32,6 +33,10 @@ pub struct TreeReader<'r, 'a> {
     tiles: usize,
     /// Bounds the tiles a corrupt file can make (tiles are merged, so real files have few).
     max_tiles: usize,
+    /// Origins of the root's tiles and children met so far: the root is a map, so each
+    /// origin appears once. Repeats would stack tiles over one region, and marking the
+    /// leaf table under each of them is work the file's size does not bound.
+    root_origins: HashSet<IVec3>,
 }
 
 impl<'r, 'a> TreeReader<'r, 'a> {
@@ -47,6 +52,7 @@ impl<'r, 'a> TreeReader<'r, 'a> {
             leaves: Vec::new(),
             tiles: 0,
             max_tiles,
+            root_origins: HashSet::new(),
         }
     }
 
@@ -89,6 +95,11 @@ impl<'r, 'a> TreeReader<'r, 'a> {
             return Err(format!(
                 "{what} {o} at byte {at} is not a multiple of {}",
                 1 << ROOT_CHILD_LOG2
+            ));
+        }
+        if !self.root_origins.insert(o) {
+            return Err(format!(
+                "{what} {o} at byte {at} repeats an origin the root already has"
             ));
         }
         Ok(o)
