@@ -106,8 +106,10 @@ impl Part {
         let header: PartHeader = serde_json::from_slice(&body[12..12 + len])
             .map_err(|e| bad(&format!("header: {e}")))?;
         let data = &body[12 + len..];
-        let pixels = header.width as u64 * header.height as u64;
-        if data.len() as u64 != pixels * 48 {
+        let bytes = (header.width as u64)
+            .checked_mul(header.height as u64)
+            .and_then(|p| p.checked_mul(48));
+        if bytes != Some(data.len() as u64) {
             return Err(bad(&format!(
                 "{} bytes of sums for {}x{} pixels",
                 data.len(),
