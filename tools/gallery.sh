@@ -2,7 +2,7 @@
 # The paper's figures, rendered: every scenes/paper/*/scene.toml at full resolution.
 #
 #   tools/gallery.sh                 # all scenes -> docs/gallery/<figure>.png + table.md
-#   tools/gallery.sh fig15-fractal-cloud fig19-sunset-cloud   # only these (table: only these)
+#   tools/gallery.sh fig15-fractal-cloud fig19-sunset-cloud   # only these (their table rows)
 #   tools/gallery.sh --table1        # the paper's Table 1 on these scenes -> table1.md
 #
 # Each scene renders with the passes and light paths of SETTINGS below, chosen so that a
@@ -38,7 +38,7 @@ fig15-fractal-cloud             80      100000
 fig16-cirrocumulus              160     100000
 fig17-glass-rgb-caustics        96      10000
 fig18-light-shafts              72      30000
-fig19-sunset-cloud              80      50000
+fig19-sunset-cloud              128     50000
 "
 
 # The paper's Table 1 (seconds; PPB = Woodcock, OM = adaptive + its transmittance
@@ -164,8 +164,16 @@ PY
     echo
     echo "| figure | resolution | passes | light paths / pass | method | device | wall time (s) | image |"
     echo "| --- | --- | --- | --- | --- | --- | --- | --- |"
-    printf '%s\n' "${rows[@]}"
-  } >"$DOCS/table.md"
+    # Rows of figures not rendered this time stay as they were.
+    {
+      [ -f "$DOCS/table.md" ] && grep '^| fig[0-9]' "$DOCS/table.md" | while IFS= read -r row; do
+        name=$(cut -d'|' -f2 <<<"$row" | tr -d ' ')
+        [[ " ${figures[*]} " == *" $name "* ]] || printf '%s\n' "$row"
+      done
+      printf '%s\n' "${rows[@]}"
+    } | sort
+  } >"$DOCS/table.md.tmp"
+  mv "$DOCS/table.md.tmp" "$DOCS/table.md"
   echo "gallery: wrote $DOCS/table.md" >&2
 }
 
