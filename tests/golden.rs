@@ -166,8 +166,10 @@ fn metric(a: &Path, reference: &Path) -> f64 {
         .rel_l1
 }
 
+/// A fresh folder for one test's renders (per process: test runs may overlap).
 fn scratch(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("golden-{name}"));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("golden-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
@@ -236,6 +238,7 @@ fn refresh(g: &Golden) {
         "tolerance": (NOISE_FACTOR * n * 1e6).round() / 1e6,
     });
     std::fs::write(&path, serde_json::to_string_pretty(&v).unwrap() + "\n").unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
     let what = if unchanged { "unchanged" } else { "written" };
     eprintln!("{}: golden {what}, noise {n:.5}", g.figure);
 }
@@ -264,6 +267,7 @@ fn check(figure: &str) {
          Candidate: {}",
         out.display()
     );
+    let _ = std::fs::remove_dir_all(out.parent().unwrap());
 }
 
 macro_rules! golden_tests {
@@ -347,4 +351,5 @@ fn a_dimmer_light_fails() {
         m > tol,
         "a 20 % dimmer sun went unnoticed: {m:.5} <= {tol:.5}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
 }
