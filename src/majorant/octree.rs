@@ -147,9 +147,18 @@ impl Octree {
             return;
         };
         let (lo, hi) = (Vec3::from(root.min), Vec3::from(root.max));
-        let nudge = (hi - lo).max_element() * 1e-6;
+        let size_nudge = (hi - lo).max_element() * 1e-6;
+        // Far from the root, a box-relative step is lost in float32 rounding of t and of
+        // the point; it must also exceed a few ulps of both, or the walk stops advancing.
+        let far = ray
+            .o
+            .abs()
+            .max_element()
+            .max(lo.abs().max_element())
+            .max(hi.abs().max_element());
         let mut t = t0;
         while t < t1 {
+            let nudge = size_nudge.max((t.abs() + far) * 16.0 * f32::EPSILON);
             let p = ray.at(t + nudge).clamp(lo, hi);
             let (bounds, bmin, bmax) = self.locate(p);
             let a = (bmin - ray.o) * inv;
@@ -607,6 +616,28 @@ mod tests {
                 true
             });
             assert!((last - b).abs() < 1e-4);
+        }
+    }
+
+    /// A camera tens of box sizes away: the walk still crosses the whole box (a
+    /// box-relative nudge alone vanished in float32 there and the walk never advanced).
+    #[test]
+    fn walk_advances_from_far_away() {
+        let g = noise_medium(false);
+        let t = Octree::build(&g, 6);
+        for dist in [40.0f32, 400.0, 4000.0] {
+            let o = Vec3::new(0.1, 1.0, dist);
+            let ray = Ray::new(o, (Vec3::new(0.0, 1.0, 0.0) - o).normalize());
+            let (a, b) = root_span(&t, &ray, 1e5).expect("hits the box");
+            let (mut steps, mut last) = (0, a);
+            t.walk(&ray, 1e5, |_, s0, s1| {
+                assert!(s1 > s0 || s1 >= b, "stalled at {s0} from {dist} m");
+                steps += 1;
+                last = s1;
+                steps < 10_000
+            });
+            assert!(steps < 10_000, "{steps} leaves from {dist} m");
+            assert_eq!(last, b);
         }
     }
 }
