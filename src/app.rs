@@ -1,6 +1,7 @@
 //! The command line: arguments, progress, status lines and outputs. Every command that
 //! renders drives a [`ppb::session::Session`]; this module only configures it.
 mod bench;
+mod bench_size;
 mod farm;
 mod info;
 mod isolate;
@@ -15,6 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 pub use bench::{bench, bench_gpu, bench_tr, BenchGpuArgs, BenchTableArgs, BenchTrArgs};
+pub use bench_size::{bench_size, BenchSizeArgs};
 pub use farm::{farm, merge, plan, FarmArgs, MergeArgs, PlanArgs};
 pub use info::{compare, info, CompareArgs};
 pub use isolate::{probe_in_child, usd_probe};

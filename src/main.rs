@@ -95,6 +95,17 @@ error at the PPB baseline's wall time (log-log interpolation).",
         after_help = "Example:\n  ppb bench-tr scenes/conformance/smoke-grid/scene.toml=tests/data/conformance/smoke-grid/reference.exr"
     )]
     BenchTr(app::BenchTrArgs),
+    /// Free-path sampling cost against grid size: the same cloud at 64^3 to 1024^3.
+    #[command(
+        long_about = "Rebuilds the scene's noise media at each resolution (voxels along the \
+longest axis; the same cloud, finer voxels), bakes their octrees, renders a few passes with \
+Woodcock (one global majorant) and with adaptive free-path sampling, interleaved, and prints per \
+resolution: active voxels, grid memory, load and octree build time, octree depth and leaves, \
+free-path time of each sampler and their ratio, density lookups per free path, wall time per \
+pass and peak memory.",
+        after_help = "Example:\n  ppb bench-size scenes/bench/size-cloud/scene.toml --resolutions 64,256,1024 --passes 4"
+    )]
+    BenchSize(app::BenchSizeArgs),
     /// GPU vs CPU beam estimate: time per pass, their ratio, crossings per second.
     #[command(
         long_about = "Traces a few passes of each scene once and runs the beam estimate of each \
@@ -184,6 +195,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => app::bench(args),
         Command::Build(args) => app::build(args),
         Command::BenchTr(args) => app::bench_tr(args),
+        Command::BenchSize(args) => app::bench_size(args),
         Command::BenchGpu(args) => app::bench_gpu(args),
         Command::Plan(args) => app::plan(args),
         Command::Merge(args) => app::merge(args),

@@ -48,7 +48,7 @@ pub struct BenchArgs {
 
 impl BenchArgs {
     /// The scene's settings with this benchmark's overrides.
-    fn settings(&self, file: &SceneFile) -> Result<RenderSettings> {
+    pub(super) fn settings(&self, file: &SceneFile) -> Result<RenderSettings> {
         Overrides {
             size: self.size,
             paths: self.paths.clone(),
@@ -68,13 +68,13 @@ fn bake_once(file: &SceneFile, depth: u32) -> Media {
 }
 
 /// One benchmark run: free-path thread-seconds, wall seconds, counters.
-struct BenchRun {
-    fps: f64,
-    total: f64,
-    c: Counters,
+pub(super) struct BenchRun {
+    pub(super) fps: f64,
+    pub(super) total: f64,
+    pub(super) c: Counters,
 }
 
-fn bench_run(
+pub(super) fn bench_run(
     file: &SceneFile,
     settings: &RenderSettings,
     media: &Media,
@@ -111,7 +111,7 @@ pub struct BenchTableArgs {
 }
 
 /// The run with the median free-path time (the upper one of an even count).
-fn median_run(mut runs: Vec<BenchRun>) -> BenchRun {
+pub(super) fn median_run(mut runs: Vec<BenchRun>) -> BenchRun {
     runs.sort_by(|a, b| a.fps.total_cmp(&b.fps));
     let mid = runs.len() / 2;
     runs.swap_remove(mid)

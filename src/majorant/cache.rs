@@ -27,12 +27,17 @@ pub enum Status {
     Invalid(String),
 }
 
+/// Names the bounds computation, so trees baked by an older builder are rebuilt.
+const BUILDER: &[u8] = b"bounds from voxel blocks, exact below 4 voxels";
+
 /// The cache key of a medium's octree under these build settings.
 pub fn key(g: &GridMedium, max_depth: u32) -> [u8; 32] {
     let mut h = blake3::Hasher::new();
     h.update(MAGIC);
     h.update(&FORMAT_VERSION.to_le_bytes());
-    h.update(&max_depth.to_le_bytes());
+    h.update(&super::octree::depth_for(g, max_depth).to_le_bytes());
+    h.update(&super::octree::PYRAMID_BUDGET_BYTES.to_le_bytes());
+    h.update(BUILDER);
     h.update(&super::octree::STEP_COST.to_le_bytes());
     h.update(&super::octree::TENTATIVE_COST.to_le_bytes());
     h.update(&g.source_hash);

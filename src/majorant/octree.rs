@@ -18,15 +18,35 @@ use crate::geometry::Ray;
 use crate::media::homogeneous::ray_box;
 use crate::media::GridMedium;
 
-/// Default pyramid depth: 64^3 finest cells.
-pub const DEFAULT_MAX_DEPTH: u32 = 6;
-/// Work of one traversal step, in units of one density lookup. In a micro-benchmark of
-/// free paths in the dense smoke (smoke-grid x 40), 1 gave the fewest ns per free path
-/// among 0.25, 0.5, 1 and 2: smaller values buy fewer lookups with more leaf steps.
-pub const STEP_COST: f32 = 1.0;
+/// Deepest pyramid a build uses unless asked for less: 256^3 finest cells, which the
+/// memory budget allows. A grid's own depth is lower when its voxels are fewer, see
+/// [`depth_for`].
+pub const DEFAULT_MAX_DEPTH: u32 = 8;
+/// Memory the build's pyramid may take: per finest cell a (majorant, minorant) pair and a
+/// cost, 12 bytes, plus 1/7 for the coarser levels.
+pub const PYRAMID_BUDGET_BYTES: u64 = 256 << 20;
+/// Work of one traversal step, in units of one density lookup. `ppb bench` (3 runs each,
+/// 2 cores) on the dense smoke, smoke-grid, cloud-hg and the size cloud at 64^3 to 1024^3
+/// put 0.25, 0.5 and 1 within their run-to-run spread in free-path time on the conformance
+/// scenes; 0.5 was ahead on 4 of 5 sizes of the cloud and does 1.3-1.6x fewer lookups
+/// (a machine-independent count) than 1.
+pub const STEP_COST: f32 = 0.5;
 /// Work of a tentative collision decided by the minorant (a random number and a
 /// logarithm, no lookup), in lookups.
 pub const TENTATIVE_COST: f32 = 0.15;
+
+/// The pyramid depth for `g`: finest cells about one voxel wide, so the cost model can
+/// split down to single voxels where the field varies, capped by `max_depth` and by
+/// [`PYRAMID_BUDGET_BYTES`]. A 64^3 grid gets 6, a 1024^3 one 8 (4 voxels per cell).
+pub fn depth_for(g: &GridMedium, max_depth: u32) -> u32 {
+    let [lo, hi] = g.bounds;
+    let (ilo, ihi) = index_box(g, lo, hi);
+    let voxels = (ihi - ilo).max_element().max(1.0);
+    let data = voxels.log2().ceil() as u32;
+    let per_cell = 12.0 * 8.0 / 7.0;
+    let budget = ((PYRAMID_BUDGET_BYTES as f64 / per_cell).log2() / 3.0).floor() as u32;
+    data.min(budget).min(max_depth)
+}
 
 /// Expected work of a ray crossing a leaf with these bounds along a mean chord.
 fn leaf_cost((majorant, minorant): (f32, f32), chord: f32) -> f32 {
@@ -100,7 +120,7 @@ struct Pyramid {
 impl Octree {
     /// Bakes the octree of `g` over its world bounds.
     pub fn build(g: &GridMedium, max_depth: u32) -> Octree {
-        let depth = max_depth.clamp(0, 8);
+        let depth = depth_for(g, max_depth);
         let pyramid = Pyramid::build(g, depth);
         let [lo, hi] = g.bounds;
         let mut nodes = vec![Node::default()];
@@ -130,6 +150,11 @@ impl Octree {
 
     pub fn root(&self) -> &Node {
         &self.nodes[0]
+    }
+
+    /// The deepest level of any node (0: the root alone).
+    pub fn depth(&self) -> u32 {
+        self.nodes.iter().map(|n| n.depth).max().unwrap_or(0)
     }
 
     pub fn leaf_count(&self) -> usize {
@@ -294,10 +319,10 @@ impl Pyramid {
         let cell = (hi - lo) / res as f32;
         let fine: Vec<(f32, f32)> = (0..res * res * res)
             .into_par_iter()
-            .map(|i| {
+            .map_init(Scratch::default, |scratch, i| {
                 let c = IVec3::new(i % res, (i / res) % res, i / (res * res));
                 let cmin = lo + cell * c.as_vec3();
-                cell_bounds(g, cmin, cmin + cell)
+                cell_bounds(g, cmin, cmin + cell, scratch)
             })
             .collect();
         let mut levels = vec![fine];
@@ -407,57 +432,47 @@ fn emit(
     }
 }
 
-/// Cells at most this many voxels wide get exact bounds (see [`exact_bounds`]).
+/// Cells at most this many voxels wide get exact bounds (see [`exact_range`]).
 const EXACT_MAX_VOXELS: f64 = 4.0;
 
-/// (majorant, minorant) of sigma_t over the world box [cmin, cmax].
-fn cell_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (f32, f32) {
-    exact_bounds(g, cmin, cmax).unwrap_or_else(|| support_bounds(g, cmin, cmax))
-}
-
-/// Exact bounds of the trilinear field over a box that is axis-aligned in index space
-/// (grids placed without rotation). The field is multilinear inside each voxel cell, so
-/// over the box its extremes lie at the corners of the box's pieces: the points whose
-/// every coordinate is a box face or a voxel-centre plane inside the box. Tighter than
-/// the voxel-support bound, it lowers the majorant and raises the minorant, both of
-/// which save lookups. A relative margin of 1e-5 covers the lookup's float rounding.
-fn exact_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> Option<(f32, f32)> {
-    let m = g.world_to_index.matrix3;
-    let off_diagonal = [
-        m.x_axis.y, m.x_axis.z, m.y_axis.x, m.y_axis.z, m.z_axis.x, m.z_axis.y,
-    ];
-    if off_diagonal.iter().any(|&v| v != 0.0) {
-        return None;
-    }
-    let a = g.world_to_index.transform_point3(cmin.as_dvec3());
-    let b = g.world_to_index.transform_point3(cmax.as_dvec3());
-    let (lo, hi) = (a.min(b), a.max(b));
-    if (hi - lo).max_element() > EXACT_MAX_VOXELS {
-        return None;
-    }
-    let planes = |lo: f64, hi: f64| -> Vec<f64> {
-        let mut v = vec![lo];
-        v.extend((lo.floor() as i64 + 1..=hi.ceil() as i64 - 1).map(|k| k as f64));
-        v.push(hi);
-        v
-    };
-    let (xs, ys, zs) = (planes(lo.x, hi.x), planes(lo.y, hi.y), planes(lo.z, hi.z));
-    let (mut max, mut min) = (0.0f32, f32::MAX);
-    for &z in &zs {
-        for &y in &ys {
-            for &x in &xs {
-                let v = g.grid.sample_index(DVec3::new(x, y, z)).max(0.0);
-                max = max.max(v);
-                min = min.min(v);
-            }
-        }
-    }
+/// (majorant, minorant) of sigma_t over the world box [cmin, cmax], from the voxels whose
+/// trilinear support reaches into it (read as one block, see `Grid::fill_block`); exact
+/// for small cells of an axis-aligned grid. `block` is scratch space.
+fn cell_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3, scratch: &mut Scratch) -> (f32, f32) {
+    let Scratch { block, lerps } = scratch;
+    let (ilo, ihi) = index_box(g, cmin, cmax);
+    // Trilinear values at any point come from the 8 voxels around it.
+    let a = ilo.floor().as_ivec3();
+    let b = ihi.floor().as_ivec3() + 1;
+    g.grid.fill_block(a, b, block);
     let s = g.density_scale;
-    Some((max * s * (1.0 + 1e-5), min * s * (1.0 - 1e-5)))
+    // Empty space and tile interiors: a constant field.
+    if block.iter().all(|&v| v == block[0]) {
+        let v = block[0].max(0.0) * s;
+        return (v, v);
+    }
+    if axis_aligned(g) && (ihi - ilo).max_element() <= EXACT_MAX_VOXELS {
+        let origin = a.as_dvec3();
+        let (max, min) = exact_range(block, b - a + 1, ilo - origin, ihi - origin, lerps);
+        // A relative margin of 1e-5 covers the lookup's float rounding.
+        return (max * s * (1.0 + 1e-5), min * s * (1.0 - 1e-5));
+    }
+    let (max, min) = block.iter().fold((0.0f32, f32::MAX), |(hi, lo), &v| {
+        let v = v.max(0.0);
+        (hi.max(v), lo.min(v))
+    });
+    (max * s, min * s)
 }
 
-/// Bounds over every voxel whose trilinear support reaches into the box (any placement).
-fn support_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (f32, f32) {
+/// Reused buffers of [`cell_bounds`], one per worker.
+#[derive(Default)]
+struct Scratch {
+    block: Vec<f32>,
+    lerps: Vec<f32>,
+}
+
+/// Index-space bounding box of a world box.
+fn index_box(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
     let mut ilo = DVec3::splat(f64::MAX);
     let mut ihi = DVec3::splat(f64::MIN);
     for k in 0..8 {
@@ -470,20 +485,98 @@ fn support_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (f32, f32) {
         ilo = ilo.min(i);
         ihi = ihi.max(i);
     }
-    // Trilinear values at any point come from the 8 voxels around it.
-    let a = ilo.floor().as_ivec3();
-    let b = ihi.floor().as_ivec3() + 1;
-    let (mut max, mut min) = (0.0f32, f32::MAX);
-    for z in a.z..=b.z {
-        for y in a.y..=b.y {
-            for x in a.x..=b.x {
-                let v = g.grid.value(IVec3::new(x, y, z)).max(0.0);
-                max = max.max(v);
-                min = min.min(v);
+    (ilo, ihi)
+}
+
+/// Whether index space is world space scaled and shifted per axis (no rotation or shear).
+fn axis_aligned(g: &GridMedium) -> bool {
+    let m = g.world_to_index.matrix3;
+    let off_diagonal = [
+        m.x_axis.y, m.x_axis.z, m.y_axis.x, m.y_axis.z, m.z_axis.x, m.z_axis.y,
+    ];
+    off_diagonal.iter().all(|&v| v == 0.0)
+}
+
+/// Exact (max, min) of the trilinear field, clamped at 0, over the box [lo, hi] given in
+/// the local index space of `block` (values of `n` voxels, x slowest). The field is
+/// multilinear inside each voxel cell, so its extremes lie at the corners of the box's
+/// pieces: the points whose every coordinate is a box face or a voxel-centre plane
+/// inside the box. Tighter than the voxel-support bound, it lowers the majorant and
+/// raises the minorant, both of which save lookups. Evaluated one axis at a time.
+fn exact_range(
+    block: &[f32],
+    n: IVec3,
+    lo: DVec3,
+    hi: DVec3,
+    scratch: &mut Vec<f32>,
+) -> (f32, f32) {
+    let (xs, ys, zs) = (
+        Stops::new(lo.x, hi.x),
+        Stops::new(lo.y, hi.y),
+        Stops::new(lo.z, hi.z),
+    );
+    let (ny, nz) = (n.y as usize, n.z as usize);
+    scratch.clear();
+    // Along x: (x stop, voxel y, voxel z).
+    for &(i, t) in xs.get() {
+        for yz in 0..ny * nz {
+            scratch.push(lerp_at(|x| block[x * ny * nz + yz], i, t));
+        }
+    }
+    // Along y: (x stop, y stop, voxel z), after the x stage.
+    let vx = scratch.len();
+    for sx in 0..xs.len {
+        for &(j, t) in ys.get() {
+            for z in 0..nz {
+                let v = lerp_at(|y| scratch[(sx * ny + y) * nz + z], j, t);
+                scratch.push(v);
             }
         }
     }
-    (max * g.density_scale, min * g.density_scale)
+    let (mut max, mut min) = (0.0f32, f32::MAX);
+    for row in scratch[vx..].chunks(nz) {
+        for &(k, t) in zs.get() {
+            let v = lerp_at(|z| row[z], k, t).max(0.0);
+            max = max.max(v);
+            min = min.min(v);
+        }
+    }
+    (max, min)
+}
+
+/// Linear interpolation between items `i` and `i + 1` at `t` (item `i` alone at 0).
+fn lerp_at(at: impl Fn(usize) -> f32, i: usize, t: f32) -> f32 {
+    if t == 0.0 {
+        at(i)
+    } else {
+        at(i) + (at(i + 1) - at(i)) * t
+    }
+}
+
+/// The evaluation points along one axis of a box at most [`EXACT_MAX_VOXELS`] wide: its
+/// two faces and the voxel-centre planes between, as (voxel below, fraction).
+struct Stops {
+    items: [(usize, f32); EXACT_MAX_VOXELS as usize + 3],
+    len: usize,
+}
+
+impl Stops {
+    fn new(lo: f64, hi: f64) -> Stops {
+        let mut s = Stops {
+            items: [(0, 0.0); EXACT_MAX_VOXELS as usize + 3],
+            len: 0,
+        };
+        let inner = (lo.floor() as i64 + 1..=hi.ceil() as i64 - 1).map(|k| k as f64);
+        for p in std::iter::once(lo).chain(inner).chain(std::iter::once(hi)) {
+            s.items[s.len] = (p.floor() as usize, (p - p.floor()) as f32);
+            s.len += 1;
+        }
+        s
+    }
+
+    fn get(&self) -> &[(usize, f32)] {
+        &self.items[..self.len]
+    }
 }
 
 /// Leaf nodes whose box the ray can enter (used by tests and `ppb info`).
@@ -569,23 +662,60 @@ mod tests {
         }
     }
 
-    /// Exact bounds are within the voxel-support bounds on every finest cell.
-    #[test]
-    fn exact_bounds_are_tighter() {
-        let g = noise_medium(false);
-        let [lo, hi] = g.bounds;
-        let cell = (hi - lo) / 32.0;
-        let mut tighter = 0;
-        for i in 0..32 * 32 * 32 {
-            let c = IVec3::new(i % 32, (i / 32) % 32, i / 1024).as_vec3();
-            let (a, b) = (lo + cell * c, lo + cell * (c + 1.0));
-            let (emax, emin) = exact_bounds(&g, a, b).expect("axis-aligned, small cells");
-            let (smax, smin) = support_bounds(&g, a, b);
-            assert!(emax <= smax * (1.0 + 1e-5) && emin >= smin * (1.0 - 1e-5));
-            tighter += (emax < smax * 0.99) as u32;
+    /// Brute force: the trilinear lookup at every corner of the box's pieces.
+    fn corner_extremes(g: &GridMedium, a: Vec3, b: Vec3) -> (f32, f32) {
+        let (lo, hi) = index_box(g, a, b);
+        let planes = |lo: f64, hi: f64| -> Vec<f64> {
+            let mut v = vec![lo, hi];
+            v.extend((lo.floor() as i64 + 1..=hi.ceil() as i64 - 1).map(|k| k as f64));
+            v
+        };
+        let (mut max, mut min) = (0.0f32, f32::MAX);
+        for &z in &planes(lo.z, hi.z) {
+            for &y in &planes(lo.y, hi.y) {
+                for &x in &planes(lo.x, hi.x) {
+                    let v = g.grid.sample_index(DVec3::new(x, y, z)).max(0.0) * g.density_scale;
+                    (max, min) = (max.max(v), min.min(v));
+                }
+            }
         }
-        assert!(tighter > 1000, "only {tighter} cells tighter");
-        assert!(exact_bounds(&noise_medium(true), lo, lo + cell).is_none());
+        (max, min)
+    }
+
+    /// On small cells of an axis-aligned grid the bounds are the field's exact extremes
+    /// (the lookup at the corners of the box's pieces), and tighter than the voxel-support
+    /// bound on many cells; on a rotated grid they still bound those corners.
+    #[test]
+    fn small_cells_get_exact_bounds() {
+        let mut scratch = Scratch::default();
+        for rotate in [false, true] {
+            let g = noise_medium(rotate);
+            let [lo, hi] = g.bounds;
+            let cell = (hi - lo) / 32.0;
+            let mut tighter = 0;
+            for i in 0..32 * 32 * 32 {
+                let c = IVec3::new(i % 32, (i / 32) % 32, i / 1024).as_vec3();
+                let (a, b) = (lo + cell * c, lo + cell * (c + 1.0));
+                let (max, min) = cell_bounds(&g, a, b, &mut scratch);
+                let (cmax, cmin) = corner_extremes(&g, a, b);
+                let tol = 2e-5 * cmax.max(1e-3);
+                assert!(
+                    max >= cmax - tol && min <= cmin + tol,
+                    "{max} {min} vs {cmax} {cmin}"
+                );
+                if !rotate {
+                    assert!(
+                        max <= cmax + tol && min >= cmin - tol,
+                        "{max} {min} vs {cmax} {cmin}"
+                    );
+                    let support = scratch.block.iter().fold(0.0f32, |m, &v| m.max(v.max(0.0)));
+                    tighter += (max < support * g.density_scale * 0.99) as u32;
+                }
+            }
+            if !rotate {
+                assert!(tighter > 1000, "only {tighter} cells tighter");
+            }
+        }
     }
 
     /// The walk visits leaves in order, contiguously, covering the ray's span of the root,

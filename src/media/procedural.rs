@@ -4,7 +4,9 @@
 use glam::{DAffine3, DVec3, IVec3, Vec3};
 use noise::{Fbm, MultiFractal, NoiseFn, Perlin};
 
-use super::grid::{Grid, GridBuilder};
+use rayon::prelude::*;
+
+use super::grid::{Grid, GridBuilder, Leaf, LEAF};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preset {
@@ -43,19 +45,43 @@ pub fn build(p: &NoiseParams) -> Grid {
     let fbm = Fbm::<Perlin>::new(p.seed)
         .set_octaves(p.octaves.clamp(1, 12))
         .set_frequency(p.frequency);
-    let mut b = GridBuilder::new("density", 0.0, index_to_world);
-    for i in 0..dims.x {
-        for j in 0..dims.y {
-            for k in 0..dims.z {
+    // Leaves are independent: evaluate them in parallel, keep the non-empty ones.
+    let leaves = (dims + LEAF - 1) / LEAF;
+    let keys: Vec<IVec3> = (0..leaves.x)
+        .flat_map(|x| {
+            (0..leaves.y).flat_map(move |y| (0..leaves.z).map(move |z| IVec3::new(x, y, z)))
+        })
+        .collect();
+    let built: Vec<(IVec3, Leaf)> = keys
+        .into_par_iter()
+        .filter_map(|key| {
+            let origin = key * LEAF;
+            let mut leaf = Leaf {
+                values: [0.0; 512],
+                active: [0; 8],
+            };
+            for n in 0..512usize {
+                let ijk = origin + IVec3::new(n as i32 / 64, (n as i32 / 8) % 8, n as i32 % 8);
+                if ijk.cmpge(dims).any() {
+                    continue;
+                }
                 // Unit-box coordinates in [0, 1]^3.
-                let u = (DVec3::new(i as f64, j as f64, k as f64) + 0.5) / dims.as_dvec3();
-                let n = fbm.get([u.x, u.y, u.z]);
-                let d = shape(p.preset, u, n);
+                let u = (ijk.as_dvec3() + 0.5) / dims.as_dvec3();
+                let d = shape(p.preset, u, fbm.get([u.x, u.y, u.z]));
                 if d > 0.0 {
-                    b.set(IVec3::new(i, j, k), d as f32, true);
+                    leaf.values[n] = d as f32;
+                    leaf.active[n / 64] |= 1 << (n % 64);
                 }
             }
-        }
+            leaf.active
+                .iter()
+                .any(|&w| w != 0)
+                .then_some((origin, leaf))
+        })
+        .collect();
+    let mut b = GridBuilder::new("density", 0.0, index_to_world);
+    for (origin, leaf) in built {
+        b.leaf(origin, leaf);
     }
     b.finish()
 }
