@@ -49,7 +49,12 @@ pub struct GridBuilder {
     pub name: String,
     pub background: f32,
     pub index_to_world: DAffine3,
-    leaves: HashMap<IVec3, Leaf>,
+    /// Leaves in the order first added; the grid keeps them where they are, so a grid of
+    /// hundreds of megabytes is never held twice.
+    leaves: Vec<Leaf>,
+    leaf_origins: Vec<IVec3>,
+    /// Leaf key -> position in `leaves`.
+    slots: HashMap<IVec3, u32>,
     tiles: Vec<Tile>,
 }
 
@@ -87,23 +92,49 @@ impl GridBuilder {
             name: name.into(),
             background,
             index_to_world,
-            leaves: HashMap::new(),
+            leaves: Vec::new(),
+            leaf_origins: Vec::new(),
+            slots: HashMap::new(),
             tiles: Vec::new(),
         }
     }
 
+    /// Room for `n` more leaves, allocated once (and on 2 MiB pages) when a reader knows
+    /// the count before the values.
+    pub fn reserve_leaves(&mut self, n: usize) {
+        if self.leaves.capacity() - self.leaves.len() < n {
+            let mut v = Vec::with_capacity(self.leaves.len() + n);
+            advise_huge_pages(&v);
+            v.append(&mut self.leaves);
+            self.leaves = v;
+        }
+        self.leaf_origins.reserve(n);
+        self.slots.reserve(n);
+    }
+
     /// Adds (or replaces) the leaf whose first voxel is `origin` (a multiple of 8).
     pub fn leaf(&mut self, origin: IVec3, leaf: Leaf) {
-        self.leaves.insert(leaf_key(origin), leaf);
+        let k = leaf_key(origin);
+        *self.leaf_mut(k) = leaf;
+    }
+
+    /// The leaf of key `k`, created (background, inactive) if new.
+    fn leaf_mut(&mut self, k: IVec3) -> &mut Leaf {
+        let next = self.leaves.len() as u32;
+        let i = *self.slots.entry(k).or_insert(next);
+        if i == next {
+            self.leaves.push(Leaf {
+                values: [self.background; LEAF_VOXELS],
+                active: [0; 8],
+            });
+            self.leaf_origins.push(k * LEAF);
+        }
+        &mut self.leaves[i as usize]
     }
 
     /// Sets one voxel, creating its leaf (filled with background, inactive) if needed.
     pub fn set(&mut self, ijk: IVec3, value: f32, active: bool) {
-        let bg = self.background;
-        let leaf = self.leaves.entry(leaf_key(ijk)).or_insert_with(|| Leaf {
-            values: [bg; LEAF_VOXELS],
-            active: [0; 8],
-        });
+        let leaf = self.leaf_mut(leaf_key(ijk));
         let n = leaf_offset(ijk - leaf_key(ijk) * LEAF);
         leaf.values[n] = value;
         if active {
@@ -118,26 +149,18 @@ impl GridBuilder {
     }
 
     pub fn finish(self) -> Grid {
-        let mut keys: Vec<IVec3> = self.leaves.keys().copied().collect();
-        keys.sort_by_key(|k| (k.x, k.y, k.z));
-        let (table_min, table_dim) = if keys.is_empty() {
+        let (table_min, table_dim) = if self.leaf_origins.is_empty() {
             (IVec3::ZERO, IVec3::ZERO)
         } else {
-            let lo = keys.iter().fold(IVec3::MAX, |a, &k| a.min(k));
-            let hi = keys.iter().fold(IVec3::MIN, |a, &k| a.max(k));
+            let lo = self.slots.keys().fold(IVec3::MAX, |a, &k| a.min(k));
+            let hi = self.slots.keys().fold(IVec3::MIN, |a, &k| a.max(k));
             (lo, hi - lo + 1)
         };
         let mut table =
             vec![EMPTY; (table_dim.x as usize) * (table_dim.y as usize) * (table_dim.z as usize)];
-        let mut leaves = Vec::with_capacity(keys.len());
-        advise_huge_pages(&leaves);
-        let mut leaf_origins = Vec::with_capacity(keys.len());
-        let mut map = self.leaves;
-        for k in keys {
-            let d = k - table_min;
-            table[((d.x * table_dim.y + d.y) * table_dim.z + d.z) as usize] = leaves.len() as u32;
-            leaves.push(map.remove(&k).expect("key from map"));
-            leaf_origins.push(k * LEAF);
+        for (k, &i) in &self.slots {
+            let d = *k - table_min;
+            table[((d.x * table_dim.y + d.y) * table_dim.z + d.z) as usize] = i;
         }
         mark_tiles(&mut table, table_min, table_dim, &self.tiles);
         Grid {
@@ -145,8 +168,8 @@ impl GridBuilder {
             background: self.background,
             world_to_index: self.index_to_world.inverse(),
             index_to_world: self.index_to_world,
-            leaves,
-            leaf_origins,
+            leaves: self.leaves,
+            leaf_origins: self.leaf_origins,
             tiles: self.tiles,
             table,
             table_min,

@@ -80,6 +80,7 @@ pub fn build(p: &NoiseParams) -> Grid {
         })
         .collect();
     let mut b = GridBuilder::new("density", 0.0, index_to_world);
+    b.reserve_leaves(built.len());
     for (origin, leaf) in built {
         b.leaf(origin, leaf);
     }

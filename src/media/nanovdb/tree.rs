@@ -132,7 +132,10 @@ pub(super) fn load_float(buf: &[u8], info: &GridMetaData) -> Parse<Grid> {
     let root = tree.root(b)?;
     check_checksum(b, root)?;
     let background = b.f32(root + 28)?;
-    let builder = GridBuilder::new(info.name.clone(), background, index_to_world(b)?);
+    let mut builder = GridBuilder::new(info.name.clone(), background, index_to_world(b)?);
+    // The header's leaf count, bounded by what the buffer can hold (a corrupt count must not
+    // reserve more than a small multiple of the file).
+    builder.reserve_leaves((info.node_counts[0] as usize).min(buf.len() / 256));
     let mut walk = Walk::new(b, &tree, builder)?;
     walk.root(root)?;
     walk.finish(&tree)

@@ -180,6 +180,7 @@ impl<'r, 'a> TreeReader<'r, 'a> {
 
     /// Reads the leaf buffers (value mask copy, then values) into `b`.
     pub fn read_buffers(&mut self, b: &mut GridBuilder) -> Parse<()> {
+        b.reserve_leaves(self.leaves.len());
         for leaf in std::mem::take(&mut self.leaves) {
             self.r.mask(512, "leaf buffer value mask")?;
             let values = read_node_values(self.r, &self.storage, &leaf.mask)
