@@ -126,7 +126,7 @@ pub fn bench_size(args: BenchSizeArgs) -> Result<ExitCode> {
         let leaves: usize = grids.map(|g| g.octree().leaf_count()).sum();
         let mib = |x: f64| x / (1u64 << 20) as f64;
         println!(
-            "{:>5} {:>8.1}M {:>8.1} {:>7.2} {:>6} {:>8} {:>8.2} {:>8.3} {:>6.3} {:>11} {:>7.2} {:>7.2} {:>6.1} {:>8.3} {:>8.3} {:>8}",
+            "{:>5} {:>8.2}M {:>8.1} {:>7.2} {:>6} {:>8} {:>8.2} {:>8.3} {:>6.3} {:>11} {:>7.2} {:>7.2} {:>6.1} {:>8.3} {:>8.3} {:>8}",
             res,
             active as f64 / 1e6,
             mib(bytes as f64),
