@@ -45,7 +45,8 @@ struct Golden {
 }
 
 /// The scenes' aspect ratios at about 4,000 pixels; passes and light paths give each
-/// render 0.3-3 s on 2 cores (octrees cached) with its noise as low as that allows.
+/// render 0.3-6 s on 2 cores (octrees cached), enough passes that every golden's noise
+/// stays under 5 % (see `every_golden_catches_a_20_percent_change`).
 const GOLDENS: &[Golden] = &[
     Golden {
         figure: "fig03-smoke-plume",
@@ -78,35 +79,35 @@ const GOLDENS: &[Golden] = &[
     Golden {
         figure: "fig15-fractal-cloud",
         size: "96x48",
-        passes: 32,
+        passes: 64,
         light_paths: 40000,
         extra: &[],
     },
     Golden {
         figure: "fig16-cirrocumulus",
         size: "96x48",
-        passes: 40,
+        passes: 96,
         light_paths: 40000,
         extra: &[],
     },
     Golden {
         figure: "fig17-glass-rgb-caustics",
         size: "64x64",
-        passes: 16,
+        passes: 40,
         light_paths: 10000,
         extra: &[],
     },
     Golden {
         figure: "fig18-light-shafts",
         size: "64x64",
-        passes: 16,
+        passes: 32,
         light_paths: 40000,
         extra: &[],
     },
     Golden {
         figure: "fig19-sunset-cloud",
         size: "64x64",
-        passes: 32,
+        passes: 64,
         light_paths: 40000,
         extra: &[],
     },
@@ -307,6 +308,26 @@ golden_tests! {
     fig17_glass_rgb_caustics => "fig17-glass-rgb-caustics",
     fig18_light_shafts => "fig18-light-shafts",
     fig19_sunset_cloud => "fig19-sunset-cloud",
+}
+
+/// Every golden is sharp enough to catch a change of its image by 20 %: a render differing
+/// by that much scores about 0.2 against the golden, give or take its noise, so
+/// tolerance + noise must stay under 0.2. (`a_dimmer_light_fails` renders such a change.)
+#[test]
+fn every_golden_catches_a_20_percent_change() {
+    if refreshing() {
+        return;
+    }
+    for g in GOLDENS {
+        let n = noise(g.figure);
+        let tolerance = NOISE_FACTOR * n;
+        assert!(
+            tolerance + n < 0.2,
+            "{}: noise {n:.4} gives tolerance {tolerance:.4}, which would let a 20 % change pass; \
+             give it more passes",
+            g.figure
+        );
+    }
 }
 
 /// The guard itself: fig13b with its sun 20 % dimmer, rendered with another seed (so the

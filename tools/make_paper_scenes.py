@@ -523,7 +523,7 @@ FIG16_HEADER = """# Fig. 16 of the paper: a cirrocumulus, 512x256: a thin, high 
 # blue-scattering haze that stands in for the sky (as in fig15). Each cell is one procedural
 # fBm cloud (noise medium, cloud preset) of its own seed; the cell list below is written by
 # tools/make_paper_scenes.py (a jittered grid, rows offset by half a cell). Every cell box
-# is at least 1.1 m wide: the octree walk stalls on boxes under 1/32 of a ray's distance.
+# is at least 1.1 m wide.
 [render]
 width = 512
 height = 256

@@ -44,9 +44,18 @@ pub struct BenchArgs {
     /// Table 1; hybrid measures the renderer's default.
     #[arg(long, value_enum, default_value = "ppb")]
     pub method: Method,
+    /// The frame to load, for scenes whose paths hold the frame token (`#`), e.g. a VDB
+    /// sequence.
+    #[arg(long)]
+    pub frame: Option<u32>,
 }
 
 impl BenchArgs {
+    /// A scene of this benchmark, at `--frame` when given.
+    pub(super) fn load(&self, scene: &std::path::Path) -> Result<SceneFile> {
+        super::load_frame(scene, self.frame)
+    }
+
     /// The scene's settings with this benchmark's overrides.
     pub(super) fn settings(&self, file: &SceneFile) -> Result<RenderSettings> {
         Overrides {
@@ -137,7 +146,7 @@ pub fn bench(table: BenchTableArgs) -> Result<ExitCode> {
     );
     let mut rates = Vec::new();
     for scene in &args.scenes {
-        let file = super::load_scene(scene)?;
+        let file = args.load(scene)?;
         let settings = args.settings(&file)?;
         let media = bake_once(&file, settings.octree_depth);
         let (mut ws, mut adaptive) = (Vec::new(), Vec::new());
@@ -502,7 +511,7 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
     );
     let mut adapter = String::new();
     for scene in &args.bench.scenes {
-        let file = super::load_scene(scene)?;
+        let file = args.bench.load(scene)?;
         let s = args.bench.settings(&file)?;
         let tracer = Tracer::new(&file.scene, s.clone())?;
         let Some(gpu) = super::open_device(args.device, true)? else {
