@@ -86,7 +86,7 @@ const GOLDENS: &[Golden] = &[
     Golden {
         figure: "fig16-cirrocumulus",
         size: "96x48",
-        passes: 96,
+        passes: 160,
         light_paths: 40000,
         extra: &[],
     },
@@ -101,7 +101,7 @@ const GOLDENS: &[Golden] = &[
         figure: "fig18-light-shafts",
         size: "64x64",
         passes: 32,
-        light_paths: 40000,
+        light_paths: 80000,
         extra: &[],
     },
     Golden {
