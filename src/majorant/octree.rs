@@ -444,9 +444,12 @@ fn cell_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3, scratch: &mut Scratch) ->
     // Trilinear values at any point come from the 8 voxels around it.
     let a = ilo.floor().as_ivec3();
     let b = ihi.floor().as_ivec3() + 1;
-    g.grid.fill_block(a, b, block);
     let s = g.density_scale;
-    // Empty space and tile interiors: a constant field.
+    if !g.grid.fill_block(a, b, block) {
+        let v = g.grid.background.max(0.0) * s;
+        return (v, v);
+    }
+    // Tile interiors: a constant field.
     if block.iter().all(|&v| v == block[0]) {
         let v = block[0].max(0.0) * s;
         return (v, v);

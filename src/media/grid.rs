@@ -279,13 +279,16 @@ impl Grid {
     /// `out[((x * ny) + y) * nz + z]` for the box's local (x, y, z). One table read per leaf
     /// slot the box touches instead of one per voxel, so bounding a region costs about
     /// its voxel count.
-    pub fn fill_block(&self, lo: IVec3, hi: IVec3, out: &mut Vec<f32>) {
-        let n = (hi - lo + 1).max(IVec3::ZERO);
+    ///
+    /// Returns false, leaving `out` empty, when the box holds nothing but background: a
+    /// box in empty space costs a few table reads, not its voxel count.
+    pub fn fill_block(&self, lo: IVec3, hi: IVec3, out: &mut Vec<f32>) -> bool {
         out.clear();
-        out.resize((n.x * n.y * n.z) as usize, self.background);
-        if n.cmple(IVec3::ZERO).any() {
-            return;
+        let n = (hi - lo + 1).max(IVec3::ZERO);
+        if n.cmple(IVec3::ZERO).any() || self.only_background(lo, hi) {
+            return false;
         }
+        out.resize((n.x * n.y * n.z) as usize, self.background);
         let (klo, khi) = (leaf_key(lo), leaf_key(hi));
         for kx in klo.x..=khi.x {
             for ky in klo.y..=khi.y {
@@ -316,6 +319,31 @@ impl Grid {
                 }
             }
         }
+        true
+    }
+
+    /// Whether every voxel of the inclusive box [lo, hi] is background: no leaf slot of the
+    /// table inside it is used (a grid with tiles is never taken as empty here).
+    fn only_background(&self, lo: IVec3, hi: IVec3) -> bool {
+        if !self.tiles.is_empty() {
+            return false;
+        }
+        let dim = self.table_dim;
+        let a = (leaf_key(lo) - self.table_min).max(IVec3::ZERO);
+        let b = (leaf_key(hi) - self.table_min).min(dim - 1);
+        if a.cmpgt(b).any() {
+            return true; // the box misses the table: no leaf there
+        }
+        for x in a.x..=b.x {
+            for y in a.y..=b.y {
+                let row = ((x * dim.y + y) * dim.z) as usize;
+                let slots = &self.table[row + a.z as usize..=row + b.z as usize];
+                if slots.iter().any(|&e| e != EMPTY) {
+                    return false;
+                }
+            }
+        }
+        true
     }
 
     /// Whether voxel `ijk` is active.
@@ -528,14 +556,28 @@ mod tests {
         assert_eq!(g.value(IVec3::new(20, 10, 10)), 2.0);
         assert_eq!(g.value(IVec3::new(26, 26, 26)), 3.0);
         assert_eq!(g.sample_index(DVec3::new(17.3, 9.5, 10.2)), 2.0);
-        // Blocks across leaves, tiles, partial tiles and empty space read as `value` does.
+        // Without tiles, a box in empty space is reported as background and not filled.
+        let mut b2 = GridBuilder::new("density", 0.0, DAffine3::IDENTITY);
+        b2.set(IVec3::new(3, 3, 3), 1.0, true);
+        b2.set(IVec3::new(100, 3, 3), 1.0, true);
+        let g2 = b2.finish();
         let mut block = Vec::new();
+        assert!(!g2.fill_block(IVec3::new(20, 0, 0), IVec3::new(90, 7, 7), &mut block));
+        assert!(block.is_empty());
+        assert!(!g2.fill_block(
+            IVec3::new(-50, -50, -50),
+            IVec3::new(-1, 40, 40),
+            &mut block
+        ));
+        assert!(g2.fill_block(IVec3::new(0, 0, 0), IVec3::new(9, 9, 9), &mut block));
+        assert_eq!(block[(3 * 10 + 3) * 10 + 3], 1.0);
+        // Blocks across leaves, tiles, partial tiles and empty space read as `value` does.
         for (lo, hi) in [
             (IVec3::new(-3, -3, -3), IVec3::new(45, 44, 43)),
             (IVec3::new(5, 7, 9), IVec3::new(17, 9, 26)),
             (IVec3::new(40, 40, 40), IVec3::new(40, 40, 40)),
         ] {
-            g.fill_block(lo, hi, &mut block);
+            assert!(g.fill_block(lo, hi, &mut block));
             let n = hi - lo + 1;
             for x in 0..n.x {
                 for y in 0..n.y {
