@@ -752,6 +752,46 @@ mod tests {
         }
     }
 
+    /// A tree deeper than the point-location table (a dense cloud at 128 voxels): the walk
+    /// hands out the bounds of the leaf a descent from the root finds, through the table's
+    /// entries that continue with a descent.
+    #[test]
+    fn walk_below_the_table_matches_the_descent() {
+        let grid = build(&NoiseParams {
+            preset: Preset::Cloud,
+            bounds: [Vec3::new(-2.2, 0.9, -1.5), Vec3::new(2.2, 3.2, 1.5)],
+            seed: 15,
+            octaves: 6,
+            frequency: 3.0,
+            resolution: 128,
+        });
+        let g = GridMedium::new(
+            Arc::new(grid),
+            DAffine3::IDENTITY,
+            3000.0,
+            Vec3::ONE,
+            Phase::ISOTROPIC,
+            "dense cloud".into(),
+            [0; 32],
+        );
+        let t = Octree::build(&g, DEFAULT_MAX_DEPTH);
+        assert!(t.depth() > INDEX_MAX_LEVEL, "depth {}", t.depth());
+        let [lo, hi] = g.bounds;
+        let mut rng = Rng::new(3, 3);
+        for _ in 0..2000 {
+            let o = Vec3::new(rng.f32() * 8.0 - 4.0, rng.f32() * 4.0, 8.0);
+            let target = lo + (hi - lo) * Vec3::new(rng.f32(), rng.f32(), rng.f32());
+            let ray = Ray::new(o, (target - o).normalize());
+            t.walk(&ray, 100.0, |b, s0, s1| {
+                if s1 - s0 > 1e-4 {
+                    let leaf = leaf_for_point(&t, ray.at(0.5 * (s0 + s1))).expect("inside");
+                    assert_eq!((b.majorant, b.minorant), (leaf.majorant, leaf.minorant));
+                }
+                true
+            });
+        }
+    }
+
     /// A camera tens of box sizes away: the walk still crosses the whole box (a
     /// box-relative nudge alone vanished in float32 there and the walk never advanced).
     #[test]
