@@ -423,3 +423,34 @@ fn help_version_and_scene_suggestions() {
         "{e}"
     );
 }
+
+/// An output with the frame token and no frames, or several frames into one output name,
+/// is refused before any work: exit 2, one line naming the output, nothing written.
+#[test]
+fn output_frame_token_and_frames_must_agree() {
+    let dir = common::temp_dir("cli", "token");
+    let s = scene(&dir, "");
+    for (args, out, want) in [
+        (vec![], "shot.####.exr", "no --frames were given"),
+        (vec!["--frames", "1-2"], "shot.exr", "no frame token"),
+    ] {
+        let out = dir.join(out);
+        let o = ppb()
+            .arg("render")
+            .args(&args)
+            .arg("-o")
+            .arg(&out)
+            .arg(&s)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(want) && err.contains("shot"),
+            "{args:?}: {err}"
+        );
+        assert!(std::fs::read_dir(&dir)
+            .unwrap()
+            .all(|e| { !e.unwrap().file_name().to_string_lossy().starts_with("shot") }));
+    }
+}

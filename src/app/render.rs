@@ -184,6 +184,29 @@ pub fn frame_output(scene: &Path, over: Option<&PathBuf>, frame: Option<u32>) ->
     super::output_path(scene, Some(&at_frame(&pattern, frame)))
 }
 
+/// An output with the frame token needs frames to fill it, and several frames need the
+/// token, or each frame's image would land in one file.
+fn check_output_token(output: Option<&Path>, frames: &[u32]) -> Result<()> {
+    let Some(out) = output else { return Ok(()) };
+    let token = ppb::farm::frames::has_token(&out.to_string_lossy());
+    if token && frames.is_empty() {
+        anyhow::bail!(
+            "{}: -o holds the frame token `#` but no --frames were given (add --frames, or \
+             remove the #)",
+            out.display()
+        );
+    }
+    if !token && frames.len() > 1 {
+        anyhow::bail!(
+            "{}: --frames renders {} frames, but -o has no frame token to tell them apart \
+             (e.g. -o out/shot.####.exr)",
+            out.display(),
+            frames.len()
+        );
+    }
+    Ok(())
+}
+
 /// `p` with its frame token replaced.
 pub fn at_frame(p: &Path, frame: Option<u32>) -> PathBuf {
     match frame {
@@ -278,6 +301,7 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     super::set_threads(args.machine.threads)?;
     let start = Instant::now();
     let frames = frame_list(args.frames.as_deref())?;
+    check_output_token(args.output.as_deref(), &frames)?;
     if !frames.is_empty() {
         scene_toml::check_frames(&args.scene, &frames)?;
     }
