@@ -317,12 +317,13 @@ impl Pyramid {
         let res = 1i32 << depth;
         let [lo, hi] = g.bounds;
         let cell = (hi - lo) / res as f32;
+        let aligned = axis_aligned(g);
         let fine: Vec<(f32, f32)> = (0..res * res * res)
             .into_par_iter()
             .map_init(Scratch::default, |scratch, i| {
                 let c = IVec3::new(i % res, (i / res) % res, i / (res * res));
                 let cmin = lo + cell * c.as_vec3();
-                cell_bounds(g, cmin, cmin + cell, scratch)
+                cell_bounds(g, aligned, cmin, cmin + cell, scratch)
             })
             .collect();
         let mut levels = vec![fine];
@@ -437,8 +438,15 @@ const EXACT_MAX_VOXELS: f64 = 4.0;
 
 /// (majorant, minorant) of sigma_t over the world box [cmin, cmax], from the voxels whose
 /// trilinear support reaches into it (read as one block, see `Grid::fill_block`); exact
-/// for small cells of an axis-aligned grid. `block` is scratch space.
-fn cell_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3, scratch: &mut Scratch) -> (f32, f32) {
+/// for small cells of an axis-aligned grid (`aligned`: [`axis_aligned`] of `g`, worked out
+/// once per build).
+fn cell_bounds(
+    g: &GridMedium,
+    aligned: bool,
+    cmin: Vec3,
+    cmax: Vec3,
+    scratch: &mut Scratch,
+) -> (f32, f32) {
     let Scratch { block, lerps } = scratch;
     let (ilo, ihi) = index_box(g, cmin, cmax);
     // Trilinear values at any point come from the 8 voxels around it.
@@ -454,7 +462,7 @@ fn cell_bounds(g: &GridMedium, cmin: Vec3, cmax: Vec3, scratch: &mut Scratch) ->
         let v = block[0].max(0.0) * s;
         return (v, v);
     }
-    if axis_aligned(g) && (ihi - ilo).max_element() <= EXACT_MAX_VOXELS {
+    if aligned && (ihi - ilo).max_element() <= EXACT_MAX_VOXELS {
         let origin = a.as_dvec3();
         let (max, min) = exact_range(block, b - a + 1, ilo - origin, ihi - origin, lerps);
         // A relative margin of 1e-5 covers the lookup's float rounding.
@@ -626,13 +634,19 @@ mod tests {
         } else {
             DAffine3::IDENTITY
         };
+        medium(grid, xf, 10.0)
+    }
+
+    /// A white, isotropic medium of `grid` placed by `xf`, sigma_t = `scale` x density.
+    fn medium(grid: crate::media::grid::Grid, xf: DAffine3, scale: f32) -> GridMedium {
+        let source = "noise".into();
         GridMedium::new(
             Arc::new(grid),
             xf,
-            10.0,
+            scale,
             Vec3::ONE,
             Phase::ISOTROPIC,
-            "noise".into(),
+            source,
             [0; 32],
         )
     }
@@ -699,7 +713,7 @@ mod tests {
             for i in 0..32 * 32 * 32 {
                 let c = IVec3::new(i % 32, (i / 32) % 32, i / 1024).as_vec3();
                 let (a, b) = (lo + cell * c, lo + cell * (c + 1.0));
-                let (max, min) = cell_bounds(&g, a, b, &mut scratch);
+                let (max, min) = cell_bounds(&g, axis_aligned(&g), a, b, &mut scratch);
                 let (cmax, cmin) = corner_extremes(&g, a, b);
                 let tol = 2e-5 * cmax.max(1e-3);
                 assert!(
@@ -765,15 +779,7 @@ mod tests {
             frequency: 3.0,
             resolution: 128,
         });
-        let g = GridMedium::new(
-            Arc::new(grid),
-            DAffine3::IDENTITY,
-            3000.0,
-            Vec3::ONE,
-            Phase::ISOTROPIC,
-            "dense cloud".into(),
-            [0; 32],
-        );
+        let g = medium(grid, DAffine3::IDENTITY, 3000.0);
         let t = Octree::build(&g, DEFAULT_MAX_DEPTH);
         assert!(t.depth() > INDEX_MAX_LEVEL, "depth {}", t.depth());
         let [lo, hi] = g.bounds;
