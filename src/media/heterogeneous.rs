@@ -58,6 +58,7 @@ impl GridMedium {
     }
 
     /// Extinction (1/m) at a world point.
+    #[inline]
     pub fn sigma_t(&self, p: Vec3) -> f32 {
         if p.cmplt(self.bounds[0]).any() || p.cmpgt(self.bounds[1]).any() {
             return 0.0;
