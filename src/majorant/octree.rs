@@ -199,6 +199,7 @@ impl Octree {
     /// The bounds and box of the leaf holding `p` (a point inside the root box). A point
     /// that rounding puts on the far side of a table cell's face is located again by a
     /// descent from the root.
+    #[inline(always)]
     fn locate(&self, p: Vec3) -> (LeafBounds, Vec3, Vec3) {
         let ix = &self.index;
         let c = ((p - ix.lo) * ix.scale)

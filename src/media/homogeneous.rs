@@ -190,6 +190,11 @@ impl Media {
     /// Albedo and phase function of the medium a collision at `p` belongs to, chosen with
     /// probability sigma_t,i / sigma_t.
     pub fn pick_collider(&self, p: Vec3, u: f32) -> Option<(Rgb, Phase)> {
+        // A lone grid is the collider: a collision in it has sigma_t > 0 there (a tracking
+        // lookup or a positive minorant said so), so the two lookups below would pick it.
+        if let ([], [g]) = (self.media.as_slice(), self.grids.as_slice()) {
+            return Some((g.albedo, g.phase));
+        }
         let total = self.sigma_t(p);
         let mut target = u * total;
         let mut last = None;
