@@ -96,16 +96,27 @@ fn contribution(o: Vec3, p: &Primary, beam: &BeamPiece, r: f32, media: &Media) -
     })
 }
 
-/// A beam projected to the film: a 2D segment with a half-width in pixels.
+/// A beam projected to the film: a 2D segment whose half-width in pixels varies linearly
+/// along it (from `h0` at `p0` to `h1` at `p1`).
 struct Line {
     p0: Vec2,
     p1: Vec2,
-    half: f32,
+    h0: f32,
+    h1: f32,
     ymin: f32,
     ymax: f32,
 }
 
+/// Slack on the half-width for float rounding of projections and jittered pixel positions.
+const SLACK_SCALE: f32 = 1.001;
+const SLACK_PIXELS: f32 = 0.01;
+
 impl Line {
+    /// How far from the projected beam a counting pixel's film position can be: a beam
+    /// point y within r of the pixel's ray, at depth z, projects within r sqrt(1 + k^2)
+    /// pixel widths at depth z of the ray's film position (k: [`Pinhole::film_slope_bound`]).
+    /// 1/z is linear along the projected segment, so the bound is too; it is evaluated at
+    /// the clipped ends.
     fn project(cam: &Pinhole, b: &Beam, r: f32) -> Option<Line> {
         let a = Vec3::from(b.origin);
         let d = Vec3::from(b.dir);
@@ -130,39 +141,52 @@ impl Line {
             return None;
         }
         let (e0, e1) = (a + d * s0, a + d * s1);
-        let zmin = (cam.depth(e0).min(cam.depth(e1)) - r).max(NEAR);
+        let k = (1.0 + cam.film_slope_bound().powi(2)).sqrt();
+        let half = |e: Vec3| {
+            let z = cam.depth(e).max(NEAR);
+            r * k * cam.pixels_per_unit_at(z) * SLACK_SCALE + SLACK_PIXELS
+        };
+        let (h0, h1) = (half(e0), half(e1));
         let p0 = cam.project(e0);
         let p1 = cam.project(e1);
-        // The radius seen at the nearest depth, plus one pixel for the jittered rays.
-        let half = r * cam.pixels_per_unit_at(zmin) + 1.0;
-        let ymin = p0.y.min(p1.y) - half;
-        let ymax = p0.y.max(p1.y) + half;
+        let h = h0.max(h1);
+        let ymin = p0.y.min(p1.y) - h;
+        let ymax = p0.y.max(p1.y) + h;
         if ymax < 0.0 || ymin >= cam.height() as f32 {
             return None;
         }
-        let xmin = p0.x.min(p1.x) - half;
-        let xmax = p0.x.max(p1.x) + half;
+        let xmin = p0.x.min(p1.x) - h;
+        let xmax = p0.x.max(p1.x) + h;
         if xmax < 0.0 || xmin >= cam.width() as f32 {
             return None;
         }
         Some(Line {
             p0,
             p1,
-            half,
+            h0,
+            h1,
             ymin,
             ymax,
         })
     }
 
-    /// Pixel columns of row `y` (covering [y, y+1)) the thick line can touch.
+    /// Half-width at parameter u of the segment.
+    fn half_at(&self, u: f32) -> f32 {
+        self.h0 + (self.h1 - self.h0) * u
+    }
+
+    /// Pixel columns of row `y` (covering [y, y+1)) the thick line can touch: the part of
+    /// the segment within the widest half-width of the row's band, widened by the largest
+    /// half-width on that part.
     fn row_span(&self, y: f32, w: usize) -> Option<(usize, usize)> {
-        let (lo, hi) = (y - self.half, y + 1.0 + self.half);
+        let h = self.h0.max(self.h1);
+        let (lo, hi) = (y - h, y + 1.0 + h);
         let d = self.p1 - self.p0;
-        let (xa, xb) = if d.y.abs() < 1e-6 {
+        let (xa, xb, local) = if d.y.abs() < 1e-6 {
             if self.p0.y < lo || self.p0.y > hi {
                 return None;
             }
-            (self.p0.x.min(self.p1.x), self.p0.x.max(self.p1.x))
+            (self.p0.x.min(self.p1.x), self.p0.x.max(self.p1.x), h)
         } else {
             let ua = ((lo - self.p0.y) / d.y).clamp(0.0, 1.0);
             let ub = ((hi - self.p0.y) / d.y).clamp(0.0, 1.0);
@@ -170,10 +194,11 @@ impl Line {
                 return None;
             }
             let (xa, xb) = (self.p0.x + d.x * ua, self.p0.x + d.x * ub);
-            (xa.min(xb), xa.max(xb))
+            let local = self.half_at(ua).max(self.half_at(ub));
+            (xa.min(xb), xa.max(xb), local)
         };
-        let x0 = (xa - self.half).floor().max(0.0);
-        let x1 = (xb + self.half).floor().min(w as f32 - 1.0);
+        let x0 = (xa - local).floor().max(0.0);
+        let x1 = (xb + local).floor().min(w as f32 - 1.0);
         (x0 <= x1).then_some((x0 as usize, x1 as usize))
     }
 }

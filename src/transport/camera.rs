@@ -84,6 +84,14 @@ impl Pinhole {
         )
     }
 
+    /// Bound on |(x, y)| / z of every ray through the film, in camera coordinates (its
+    /// corners): a point at distance d from such a ray, at depth z, projects within
+    /// sqrt(1 + bound^2) d of the ray's film position, in units of one pixel at depth z.
+    pub fn film_slope_bound(&self) -> f32 {
+        let aspect = self.width as f32 / self.height as f32;
+        self.tan_half * (aspect * aspect + 1.0).sqrt()
+    }
+
     /// World-space width of one pixel at distance `dist` along the view axis.
     pub fn pixel_footprint(&self, dist: f32) -> f32 {
         2.0 * dist * self.tan_half / self.height as f32
