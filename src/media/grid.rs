@@ -278,7 +278,7 @@ impl Grid {
     }
 
     /// Value of voxel `ijk` (background outside leaves and tiles).
-    #[inline]
+    #[inline(always)]
     pub fn value(&self, ijk: IVec3) -> f32 {
         match self.slot(ijk) {
             Slot::Leaf(l) => l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)],
