@@ -6,7 +6,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
-use crate::media::grid::Grid;
+use crate::media::grid::{Grid, SEARCH_SLOT};
 use crate::media::homogeneous::ray_box;
 use crate::media::{GridMedium, Media};
 use crate::transport::camera::CameraPass;
@@ -139,7 +139,12 @@ fn grid_meta(g: &GridMedium, data: &mut Vec<u32>) -> Result<GridMeta> {
             .map_err(|_| Error::Other(format!("{}: grid too large for the GPU", g.source)))
     };
     let table_base = offset(data)?;
-    data.extend_from_slice(table);
+    // The shader searches the tiles at every slot without a leaf or a whole tile.
+    data.extend(
+        table
+            .iter()
+            .map(|&s| if s == SEARCH_SLOT { u32::MAX } else { s }),
+    );
     let leaf_base = offset(data)?;
     for (_, leaf) in grid.leaves() {
         data.extend(leaf.values.iter().map(|v| v.to_bits()));

@@ -14,7 +14,10 @@ use std::collections::HashMap;
 /// Leaf edge length in voxels.
 pub const LEAF: i32 = 8;
 const LEAF_VOXELS: usize = 512;
+/// A table slot no leaf holds and no tile touches: background.
 const EMPTY: u32 = u32::MAX;
+/// A table slot no leaf holds that a tile covers in part: search the tiles.
+pub const SEARCH_SLOT: u32 = u32::MAX - 1;
 /// Table slots with this bit name a tile (index in the low bits), not a leaf.
 pub const TILE_SLOT: u32 = 1 << 31;
 
@@ -22,7 +25,9 @@ pub const TILE_SLOT: u32 = 1 << 31;
 enum Slot<'a> {
     Leaf(&'a Leaf),
     Tile(f32),
-    /// No leaf, and no tile covers the whole slot: search the tiles.
+    /// No leaf and no tile touches the slot.
+    Background,
+    /// Outside the table, or a slot a tile covers in part: search the tiles.
     Other,
 }
 
@@ -207,9 +212,10 @@ fn advise_huge_pages<T>(v: &Vec<T>) {
     }
 }
 
-/// Marks the table's empty slots whose 8^3 voxels one tile covers whole. A voxel takes
-/// the value of the first tile containing it, so each slot goes to the first tile that
-/// touches it, and stays a search when that tile covers it only in part.
+/// Marks the table's empty slots that tiles touch: a slot whose 8^3 voxels one tile covers
+/// whole names it, one it covers in part is searched. A voxel takes the value of the
+/// first tile containing it, so each slot goes to the first tile that touches it. Slots no
+/// tile touches stay empty, so a lookup in empty space needs no search of the tiles.
 fn mark_tiles(table: &mut [u32], min: IVec3, dim: IVec3, tiles: &[Tile]) {
     for (k, t) in tiles.iter().enumerate().rev() {
         let lo = (leaf_key(t.min) - min).max(IVec3::ZERO);
@@ -223,7 +229,11 @@ fn mark_tiles(table: &mut [u32], min: IVec3, dim: IVec3, tiles: &[Tile]) {
                     }
                     let first = (IVec3::new(x, y, z) + min) * LEAF;
                     let whole = first.cmpge(t.min).all() && (first + LEAF - 1).cmple(t.max).all();
-                    table[i] = if whole { TILE_SLOT | k as u32 } else { EMPTY };
+                    table[i] = if whole {
+                        TILE_SLOT | k as u32
+                    } else {
+                        SEARCH_SLOT
+                    };
                 }
             }
         }
@@ -258,7 +268,8 @@ impl Grid {
             return Slot::Other;
         }
         match self.table[((d.x * self.table_dim.y + d.y) * self.table_dim.z + d.z) as usize] {
-            EMPTY => Slot::Other,
+            EMPTY => Slot::Background,
+            SEARCH_SLOT => Slot::Other,
             s if s & TILE_SLOT != 0 => Slot::Tile(self.tiles[(s & !TILE_SLOT) as usize].value),
             s => Slot::Leaf(&self.leaves[s as usize]),
         }
@@ -283,6 +294,7 @@ impl Grid {
         match self.slot(ijk) {
             Slot::Leaf(l) => l.values[leaf_offset(ijk - leaf_key(ijk) * LEAF)],
             Slot::Tile(v) => v,
+            Slot::Background => self.background,
             Slot::Other => self.tile_at(ijk).map_or(self.background, |t| t.value),
         }
     }
@@ -323,6 +335,7 @@ impl Grid {
                             }
                         }
                         Slot::Tile(v) => fill_box(out, a, b, &at, |_| v),
+                        Slot::Background => {}
                         Slot::Other if self.tiles.is_empty() => {}
                         Slot::Other => fill_box(out, a, b, &at, |v| {
                             self.tile_at(v).map_or(self.background, |t| t.value)
@@ -377,8 +390,10 @@ impl Grid {
         let local = i - leaf_key(i) * LEAF;
         if local.cmplt(IVec3::splat(LEAF - 1)).all() {
             let slot = self.slot(i);
-            if let Slot::Tile(v) = slot {
-                return v;
+            match slot {
+                Slot::Tile(v) => return v,
+                Slot::Background => return self.background,
+                _ => {}
             }
             if let Slot::Leaf(l) = slot {
                 let o = leaf_offset(local);
@@ -406,9 +421,10 @@ impl Grid {
         self.sample_index(self.world_to_index.transform_point3(p.as_dvec3()))
     }
 
-    /// The leaf-slot table (`u32::MAX` = no leaf and no tile covering the slot whole;
-    /// [`TILE_SLOT`] | k = inside tile k; else an index into [`Self::leaves`]
-    /// order), its minimum leaf key and its size in leaves, x-major.
+    /// The leaf-slot table (`u32::MAX` = no leaf and no tile touching the slot;
+    /// [`SEARCH_SLOT`] = no leaf, a tile covering the slot in part; [`TILE_SLOT`] | k =
+    /// inside tile k; else an index into [`Self::leaves`] order), its minimum leaf key and
+    /// its size in leaves, x-major.
     pub fn leaf_table(&self) -> (&[u32], IVec3, IVec3) {
         (&self.table, self.table_min, self.table_dim)
     }
@@ -554,17 +570,19 @@ mod tests {
             }
             g.tile_at(ijk).map_or(g.background, |t| t.value)
         };
-        let mut marked = 0;
+        let (mut marked, mut background) = (0, 0);
         for x in -2..50 {
             for y in -2..50 {
                 for z in -2..50 {
                     let ijk = IVec3::new(x, y, z);
                     assert_eq!(g.value(ijk), search(ijk), "{ijk}");
                     marked += matches!(g.slot(ijk), Slot::Tile(_)) as u32;
+                    background += matches!(g.slot(ijk), Slot::Background) as u32;
                 }
             }
         }
         assert!(marked > 0, "no slot names a tile");
+        assert!(background > 0, "no slot is known to be background");
         assert_eq!(g.value(IVec3::new(20, 10, 10)), 2.0);
         assert_eq!(g.value(IVec3::new(26, 26, 26)), 3.0);
         assert_eq!(g.sample_index(DVec3::new(17.3, 9.5, 10.2)), 2.0);
