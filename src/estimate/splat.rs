@@ -33,9 +33,10 @@ pub fn splat(
 ) -> (Vec<Rgb>, u64) {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let bands = h.div_ceil(BAND);
+    let reach = reach_per_radius(cam);
     let lines: Vec<Option<Line>> = beams
         .par_iter()
-        .map(|b| Line::project(cam, b, radius))
+        .map(|b| Line::project(cam, b, radius, reach))
         .collect();
     let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
     for (i, l) in lines.iter().enumerate() {
@@ -111,13 +112,19 @@ struct Line {
 const SLACK_SCALE: f32 = 1.001;
 const SLACK_PIXELS: f32 = 0.01;
 
+/// How far from the projected beam a counting pixel's film position can be, per unit of
+/// radius: a beam point within r of the pixel's ray, at depth z, projects within
+/// r sqrt(1 + k^2) pixel widths at depth z of the ray's film position
+/// (k: [`Pinhole::film_slope_bound`]).
+fn reach_per_radius(cam: &Pinhole) -> f32 {
+    (1.0 + cam.film_slope_bound().powi(2)).sqrt()
+}
+
 impl Line {
-    /// How far from the projected beam a counting pixel's film position can be: a beam
-    /// point y within r of the pixel's ray, at depth z, projects within r sqrt(1 + k^2)
-    /// pixel widths at depth z of the ray's film position (k: [`Pinhole::film_slope_bound`]).
-    /// 1/z is linear along the projected segment, so the bound is too; it is evaluated at
+    /// The thick line of beam `b` of radius `r`, `reach` being [`reach_per_radius`]. 1/z
+    /// is linear along the projected segment, so the half-width is too; it is evaluated at
     /// the clipped ends.
-    fn project(cam: &Pinhole, b: &Beam, r: f32) -> Option<Line> {
+    fn project(cam: &Pinhole, b: &Beam, r: f32, reach: f32) -> Option<Line> {
         let a = Vec3::from(b.origin);
         let d = Vec3::from(b.dir);
         let (mut s0, mut s1) = (0.0f32, b.length);
@@ -141,10 +148,9 @@ impl Line {
             return None;
         }
         let (e0, e1) = (a + d * s0, a + d * s1);
-        let k = (1.0 + cam.film_slope_bound().powi(2)).sqrt();
         let half = |e: Vec3| {
             let z = cam.depth(e).max(NEAR);
-            r * k * cam.pixels_per_unit_at(z) * SLACK_SCALE + SLACK_PIXELS
+            r * reach * cam.pixels_per_unit_at(z) * SLACK_SCALE + SLACK_PIXELS
         };
         let (h0, h1) = (half(e0), half(e1));
         let p0 = cam.project(e0);

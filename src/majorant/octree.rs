@@ -640,14 +640,13 @@ mod tests {
 
     /// A white, isotropic medium of `grid` placed by `xf`, sigma_t = `scale` x density.
     fn medium(grid: crate::media::grid::Grid, xf: DAffine3, scale: f32) -> GridMedium {
-        let source = "noise".into();
         GridMedium::new(
             Arc::new(grid),
             xf,
             scale,
             Vec3::ONE,
             Phase::ISOTROPIC,
-            source,
+            "noise".into(),
             [0; 32],
         )
     }

@@ -389,22 +389,21 @@ impl Grid {
         // Fast path: all 8 corners inside one leaf slot (343 of 512 cells).
         let local = i - leaf_key(i) * LEAF;
         if local.cmplt(IVec3::splat(LEAF - 1)).all() {
-            let slot = self.slot(i);
-            match slot {
+            match self.slot(i) {
                 Slot::Tile(v) => return v,
                 Slot::Background => return self.background,
-                _ => {}
-            }
-            if let Slot::Leaf(l) = slot {
-                let o = leaf_offset(local);
-                let v = |d: usize| l.values[o + d];
-                let (dx, dy, dz) = ((LEAF * LEAF) as usize, LEAF as usize, 1usize);
-                let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-                let x00 = lerp(v(0), v(dx), t.x);
-                let x10 = lerp(v(dy), v(dx + dy), t.x);
-                let x01 = lerp(v(dz), v(dx + dz), t.x);
-                let x11 = lerp(v(dy + dz), v(dx + dy + dz), t.x);
-                return lerp(lerp(x00, x10, t.y), lerp(x01, x11, t.y), t.z);
+                Slot::Other => {}
+                Slot::Leaf(l) => {
+                    let o = leaf_offset(local);
+                    let v = |d: usize| l.values[o + d];
+                    let (dx, dy, dz) = ((LEAF * LEAF) as usize, LEAF as usize, 1usize);
+                    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+                    let x00 = lerp(v(0), v(dx), t.x);
+                    let x10 = lerp(v(dy), v(dx + dy), t.x);
+                    let x01 = lerp(v(dz), v(dx + dz), t.x);
+                    let x11 = lerp(v(dy + dz), v(dx + dy + dz), t.x);
+                    return lerp(lerp(x00, x10, t.y), lerp(x01, x11, t.y), t.z);
+                }
             }
         }
         let v = |dx, dy, dz| self.value(i + IVec3::new(dx, dy, dz));
