@@ -30,7 +30,11 @@ use crate::media::Media;
 use crate::pass::{TracedPass, Tracer};
 use glam::Vec3;
 
-pub const SHADER: &str = include_str!("../../shaders/beam_estimate.wgsl");
+/// The kernel's source: its own file and the shared media code.
+pub const SHADER: &str = concat!(
+    include_str!("../../shaders/beam_estimate.wgsl"),
+    include_str!("../../shaders/media.wgsl")
+);
 
 /// Segments or pixels per dispatch: long single dispatches can lose the device.
 pub const CHUNK: u32 = 65536;
