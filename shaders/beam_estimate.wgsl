@@ -2,7 +2,12 @@
 // `segment_main`, one invocation per segment, walks the beam BVH and writes
 // beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) (and, in w, the number of
 // kernel evaluations); `pixel_main`, one invocation per pixel, adds its segments' results
-// to the pixel's float32 accumulator in segment order (deterministic sums). Mirrors
+// to the pixel's float32 accumulator in segment order (deterministic sums).
+// Primary segments may instead be rasterised (the original PPB's beam quads): `quad_vs`
+// draws each beam as a film rectangle covering every pixel its kernel can reach, and
+// `quad_fs` evaluates the same term for the pixel's primary segment into an additively
+// blended float32 target, which `pixel_main` adds first. Blending follows primitive order,
+// so the sums stay in beam order, as on the CPU. Mirrors
 // `estimate::eq2` (the pair's term with its edge rule, the camera transmittance),
 // `estimate::beams::BeamMap::radiance` and `media::Media` exactly; the structs match the
 // `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
@@ -47,6 +52,11 @@ struct BeamPiece {
     beam: u32,
 }
 
+struct BeamQuad {
+    corners: array<vec2<f32>, 4>,
+    piece: BeamPiece,
+}
+
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> chunk: Chunk;
 @group(0) @binding(2) var<storage, read> segments: array<Segment>;
@@ -57,6 +67,9 @@ struct BeamPiece {
 @group(0) @binding(7) var<storage, read> grid_data: array<u32>;
 @group(0) @binding(8) var<storage, read_write> accum: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> seg_out: array<vec4<f32>>;
+@group(0) @binding(10) var primary_sums: texture_2d<f32>;
+@group(0) @binding(11) var<storage, read> primaries: array<Segment>;
+@group(0) @binding(12) var<storage, read> quads: array<BeamQuad>;
 
 // The grid transmittance estimate at t: the value after the last step before t.
 fn grid_tr(seg: Segment, t: f32) -> f32 {
@@ -167,8 +180,38 @@ fn pixel_main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let pixel = chunk.first + id.x;
     var l = vec4<f32>(0.0);
+    let w = params.raster_width;
+    if w > 0u {
+        l = textureLoad(primary_sums, vec2<u32>(pixel % w, pixel / w), 0);
+    }
     for (var i = pixel_first[pixel]; i < pixel_first[pixel + 1u]; i++) {
         l += seg_out[i];
     }
     accum[pixel] += l;
+}
+
+struct QuadOut {
+    @builtin(position) pos: vec4<f32>,
+    @location(0) @interpolate(flat) quad: u32,
+}
+
+@vertex
+fn quad_vs(@builtin(vertex_index) v: u32, @builtin(instance_index) q: u32) -> QuadOut {
+    // Two triangles, (0, 1, 2) and (2, 1, 3), over the strip-ordered corners.
+    var strip = array<u32, 6>(0u, 1u, 2u, 2u, 1u, 3u);
+    var out: QuadOut;
+    out.pos = vec4<f32>(quads[q].corners[strip[v]], 0.0, 1.0);
+    out.quad = q;
+    return out;
+}
+
+@fragment
+fn quad_fs(in: QuadOut) -> @location(0) vec4<f32> {
+    let px = vec2<u32>(in.pos.xy);
+    let seg = primaries[px.y * params.raster_width + px.x];
+    let r = piece_radiance(seg, safe_inv(seg.dir), quads[in.quad].piece);
+    if r.w == 0.0 {
+        discard;
+    }
+    return r;
 }

@@ -43,7 +43,8 @@ struct Params {
     radius: f32,
     box_count: u32,
     grid_count: u32,
-    _pad: u32,
+    // The image width when primary segments are rasterised, 0 when they are gathered.
+    raster_width: u32,
     boxes: array<MediumBox, MAX_BOXES>,
     grids: array<GridMeta, MAX_GRIDS>,
 }

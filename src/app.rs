@@ -23,6 +23,7 @@ pub use isolate::{probe_in_child, usd_probe};
 pub use render::{render, RenderArgs};
 pub use watch::{watch, WatchArgs};
 
+use ppb::gpu::beams::PrimaryPath;
 use ppb::gpu::{DeviceKind, Gpu};
 use ppb::majorant::cache;
 use ppb::media::Media;
@@ -156,6 +157,12 @@ pub struct Machine {
     /// names the adapter. WGPU_BACKEND=vulkan|metal|dx12|gl narrows the search.
     #[arg(long, value_enum, default_value = "auto")]
     pub device: DeviceKind,
+    /// How the GPU estimates primary camera segments: raster (each beam drawn as a quad on
+    /// the film, the original PPB's way), gather (a beam BVH query per pixel, as for
+    /// segments after glass) or auto (raster where the adapter can blend float32 targets).
+    /// Both give the CPU's image; `ppb bench-gpu` times both.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub gpu_primary: PrimaryPath,
 }
 
 /// An error met while rendering (a device lost, an output that cannot be written), not

@@ -11,7 +11,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::{cpu::CpuBeams, Estimator};
 use crate::film::Film;
-use crate::gpu::beams::{GpuBeams, GpuStats};
+use crate::gpu::beams::{GpuBeams, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
 use crate::output::Image;
 use crate::pass::{Timings, Tracer};
@@ -65,19 +65,11 @@ impl Session {
         }
     }
 
-    /// A session with the beam estimate on `gpu`, or on the CPU without one.
-    pub fn open(tracer: Tracer, gpu: Option<Gpu>) -> Result<Self> {
+    /// A session with the beam estimate on `gpu` (its primary segments estimated as
+    /// `primary` says), or on the CPU without one.
+    pub fn open(tracer: Tracer, gpu: Option<Gpu>, primary: PrimaryPath) -> Result<Self> {
         let estimator: Box<dyn Estimator> = match gpu {
-            Some(g) => {
-                let s = &tracer.settings;
-                let origin = tracer.camera().origin();
-                Box::new(GpuBeams::new(
-                    g,
-                    tracer.media(),
-                    origin,
-                    s.width * s.height,
-                )?)
-            }
+            Some(g) => Box::new(GpuBeams::new(g, tracer.media(), tracer.camera(), primary)?),
             None => Box::new(CpuBeams),
         };
         Ok(Session::new(tracer, estimator))

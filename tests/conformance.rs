@@ -12,6 +12,7 @@ use common::gpu_or_skip;
 use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
+use ppb::gpu::beams::PrimaryPath;
 use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
@@ -67,7 +68,7 @@ impl Case<'_> {
             Device::Gpu => Some(gpu_or_skip(self.scene)?),
         };
         let r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
-        let mut session = Session::open(r, gpu).expect("estimator");
+        let mut session = Session::open(r, gpu, PrimaryPath::Auto).expect("estimator");
         Some(session.render(self.passes).expect("render"))
     }
 }

@@ -13,11 +13,12 @@ use ppb::compare::DeviceDiff;
 use ppb::estimate::beams::{BeamMap, BeamPiece};
 use ppb::estimate::eq2;
 use ppb::geometry::Ray;
-use ppb::gpu::beams::GpuBeams;
+use ppb::gpu::beams::{GpuBeams, PrimaryPath};
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::pass::{Timings, TracedPass, Tracer};
 use ppb::scene::toml::load;
-use ppb::transport::camera::{CameraPass, Primary};
+use ppb::scene::Camera;
+use ppb::transport::camera::{CameraPass, Pinhole, Primary};
 use ppb::transport::transmittance::{RatioSteps, SegmentTr, TrMode, MAX_TR_SAMPLES};
 use ppb::transport::{Beam, Counters};
 
@@ -28,19 +29,32 @@ fn data(p: &str) -> std::path::PathBuf {
 struct Parity {
     diff: DeviceDiff,
     evaluations: u64,
+    gpu_evaluations: u64,
     secondary: usize,
 }
 
-fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> Option<Parity> {
+/// Both ways of estimating primary segments on the GPU: beam quads and BVH queries.
+const PRIMARY: [PrimaryPath; 2] = [PrimaryPath::Raster, PrimaryPath::Gather];
+
+fn parity(
+    scene: &str,
+    size: u32,
+    beams: usize,
+    tr: TrMode,
+    passes: &[u32],
+    primary: PrimaryPath,
+) -> Option<Parity> {
     let g = gpu_or_skip(scene)?;
     let file = load(&data(scene)).expect("scene loads");
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths, s.tr_mode) = (size, size, beams, tr);
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let mut est = GpuBeams::new(g, r.media(), r.camera().origin(), size * size).expect("gpu");
+    let mut est = GpuBeams::new(g, r.media(), r.camera(), primary).expect("gpu");
+    assert_eq!(est.primary(), primary);
     let mut out = Parity {
         diff: DeviceDiff::default(),
         evaluations: 0,
+        gpu_evaluations: 0,
         secondary: 0,
     };
     for &i in passes {
@@ -48,16 +62,60 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
         let (cpu, evals) = r.beam_image(&t);
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
-        out.diff.add(&cpu, &est.read().expect("read back").0);
+        let gpu = est.read().expect("read back").0;
+        // The GPU's segments end where they leave the media, so it counts no more pairs
+        // than the CPU (beyond, the terms are 0).
+        let gpu_evals = gpu.iter().map(|p| p[3] as f64).sum::<f64>() as u64;
+        assert!(
+            gpu_evals <= evals,
+            "{scene} {primary:?} pass {i}: evaluations"
+        );
+        out.diff.add(&cpu, &gpu);
         out.evaluations += evals;
+        out.gpu_evaluations += gpu_evals;
         out.secondary += t.camera.secondary.len();
     }
     let d = &out.diff;
     eprintln!(
-        "{scene}: rel_l1 {:.2e}, {} of {} lit pixels off by > 1e-3, {} evaluations, {} secondary segments",
-        d.rel_l1(), d.off_pixels, d.lit_pixels, out.evaluations, out.secondary
+        "{scene} ({primary:?}): rel_l1 {:.2e}, {} of {} lit pixels off by > 1e-3, {} evaluations on the CPU, {} on the GPU, {} secondary segments",
+        d.rel_l1(), d.off_pixels, d.lit_pixels, out.evaluations, out.gpu_evaluations, out.secondary
     );
     Some(out)
+}
+
+/// Both ways of estimating primaries on `scene` against the CPU: the same image within
+/// float32 rounding (`enough` checks the pass exercised what the test is for), and the
+/// same pairs found by beam quads as by the BVH gather. None without an adapter.
+fn both_match_cpu(
+    scene: &str,
+    tr: TrMode,
+    passes: &[u32],
+    enough: impl Fn(&Parity) -> bool,
+) -> Option<()> {
+    let mut runs = Vec::new();
+    for primary in PRIMARY {
+        let p = parity(scene, 96, 20_000, tr, passes, primary)?;
+        assert!(enough(&p), "{scene} {primary:?}: too little exercised");
+        assert!(
+            p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
+            "{scene} {tr:?} {primary:?}: {} pixels off",
+            p.diff.off_pixels
+        );
+        assert!(
+            p.diff.rel_l1() < 1e-5,
+            "{scene} {tr:?} {primary:?}: rel_l1 {}",
+            p.diff.rel_l1()
+        );
+        runs.push(p);
+    }
+    let [raster, gather] = &runs[..] else {
+        unreachable!("two runs")
+    };
+    assert_eq!(
+        raster.gpu_evaluations, gather.gpu_evaluations,
+        "{scene} {tr:?}: pairs found by beam quads and by the gather"
+    );
+    Some(())
 }
 
 /// Heterogeneous media: grid lookups, ratio-tracking steps and the splat vs BVH query.
@@ -65,16 +123,9 @@ fn parity(scene: &str, size: u32, beams: usize, tr: TrMode, passes: &[u32]) -> O
 fn gpu_matches_cpu_on_smoke_grid() {
     let scene = "scenes/conformance/smoke-grid/scene.toml";
     for tr in [TrMode::Ratio, TrMode::Random] {
-        let Some(p) = parity(scene, 96, 20_000, tr, &[1, 7]) else {
-            return;
-        };
-        assert!(p.evaluations > 100_000 && p.diff.lit_pixels > 3000);
-        assert!(
-            p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
-            "{tr:?}: {} pixels off",
-            p.diff.off_pixels
-        );
-        assert!(p.diff.rel_l1() < 1e-5, "{tr:?}: rel_l1 {}", p.diff.rel_l1());
+        both_match_cpu(scene, tr, &[1, 7], |p| {
+            p.evaluations > 100_000 && p.diff.lit_pixels > 3000
+        });
     }
 }
 
@@ -82,35 +133,18 @@ fn gpu_matches_cpu_on_smoke_grid() {
 #[test]
 fn gpu_matches_cpu_on_cloud_tiles() {
     let scene = "scenes/conformance/cloud-hg/scene.toml";
-    let Some(p) = parity(scene, 96, 20_000, TrMode::Ratio, &[1, 7]) else {
-        return;
-    };
-    eprintln!(
-        "cloud-hg: {} evaluations, {} lit pixels, {} off, rel_l1 {:.2e}",
-        p.evaluations,
-        p.diff.lit_pixels,
-        p.diff.off_pixels,
-        p.diff.rel_l1()
-    );
-    assert!(p.evaluations > 50_000 && p.diff.lit_pixels > 1000);
-    assert!(p.diff.off_pixels * 1000 <= p.diff.lit_pixels);
-    assert!(p.diff.rel_l1() < 1e-5, "rel_l1 {}", p.diff.rel_l1());
+    both_match_cpu(scene, TrMode::Ratio, &[1, 7], |p| {
+        p.evaluations > 50_000 && p.diff.lit_pixels > 1000
+    });
 }
 
 /// Glass: camera segments after refraction and reflection, weighted by Fresnel.
 #[test]
 fn gpu_matches_cpu_on_glass_caustic() {
     let scene = "scenes/conformance/glass-caustic/scene.toml";
-    let Some(p) = parity(scene, 96, 20_000, TrMode::Ratio, &[1, 3]) else {
-        return;
-    };
-    assert!(p.secondary > 1000 && p.evaluations > 500_000);
-    assert!(
-        p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
-        "{} pixels off",
-        p.diff.off_pixels
-    );
-    assert!(p.diff.rel_l1() < 1e-5, "rel_l1 {}", p.diff.rel_l1());
+    both_match_cpu(scene, TrMode::Ratio, &[1, 3], |p| {
+        p.secondary > 1000 && p.evaluations > 500_000
+    });
 }
 
 /// Eq. 2's edge rule (`estimate::eq2::term`: t in [0, t_surf), s in [0, length), d < r)
@@ -134,7 +168,20 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
         albedo: Vec3::new(0.8, 0.6, 0.4),
         phase: Phase { g: 0.3 },
     }]);
-    let mut est = GpuBeams::new(g, &media, Vec3::ZERO, 1).expect("gpu");
+    // One pixel looking down +x. The rule is the shader's `piece_radiance`, which beam
+    // quads share; they are not drawn here, since the splat's camera clip (as on the CPU)
+    // drops beams at the camera's depth, the t = 0 cases.
+    let camera = Pinhole::new(
+        &Camera {
+            origin: Vec3::ZERO,
+            target: Vec3::X,
+            up: Vec3::Y,
+            vfov_deg: 30.0,
+        },
+        1,
+        1,
+    );
+    let mut est = GpuBeams::new(g, &media, &camera, PrimaryPath::Gather).expect("gpu");
     let ray = Ray::new(Vec3::ZERO, Vec3::X);
     let power = Vec3::new(3.0, 5.0, 7.0);
     // A beam along +z crossing the camera ray at t = tx, s = s_at, distance |dy| (exact).

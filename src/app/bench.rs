@@ -12,7 +12,7 @@ use ppb::compare::{block_mean, compare as metrics, DeviceDiff};
 use ppb::error::Result as PpbResult;
 use ppb::estimate::Estimator;
 use ppb::film::Film;
-use ppb::gpu::beams::GpuBeams;
+use ppb::gpu::beams::{GpuBeams, PrimaryPath};
 use ppb::gpu::DeviceKind;
 use ppb::media::Media;
 use ppb::output::{self, Image};
@@ -444,15 +444,18 @@ struct DeviceRace {
 }
 
 /// An estimator that runs every pass's beam estimate on the CPU (into the film) and, on
-/// its own, on the GPU, timing both and comparing their images.
+/// their own, on the GPU once per way of estimating primary segments, timing each and
+/// comparing their images with the CPU's.
 struct Race {
-    gpu: GpuBeams,
-    out: Arc<Mutex<DeviceRace>>,
+    gpus: Vec<GpuBeams>,
+    out: Arc<Mutex<Vec<DeviceRace>>>,
 }
 
 impl Estimator for Race {
     fn describe(&self) -> String {
-        self.gpu.describe()
+        self.gpus
+            .first()
+            .map_or_else(|| "cpu".into(), |g| g.describe())
     }
 
     fn needs_beam_map(&self) -> bool {
@@ -470,17 +473,20 @@ impl Estimator for Race {
         let (cpu, evals) = tracer.beam_image(t);
         let cpu_seconds = start.elapsed().as_secs_f64();
         film.add(&cpu);
-        self.gpu.clear()?;
-        let start = Instant::now();
-        self.gpu.submit(t, tracer.media())?;
-        let done = self.gpu.wait()?.map_or_else(Instant::now, |t| t.done);
-        let gpu_seconds = (done - start).as_secs_f64();
-        let (acc, _) = self.gpu.read()?;
-        let mut o = self.out.lock().unwrap_or_else(|e| e.into_inner());
-        o.cpu_seconds += cpu_seconds;
-        o.gpu_seconds += gpu_seconds;
-        o.pairs += evals;
-        o.diff.add(&cpu, &acc);
+        for (k, gpu) in self.gpus.iter_mut().enumerate() {
+            gpu.clear()?;
+            let start = Instant::now();
+            gpu.submit(t, tracer.media())?;
+            let done = gpu.wait()?.map_or_else(Instant::now, |t| t.done);
+            let gpu_seconds = (done - start).as_secs_f64();
+            let (acc, _) = gpu.read()?;
+            let mut out = self.out.lock().unwrap_or_else(|e| e.into_inner());
+            let o = &mut out[k];
+            o.cpu_seconds += cpu_seconds;
+            o.gpu_seconds += gpu_seconds;
+            o.pairs += evals;
+            o.diff.add(&cpu, &acc);
+        }
         Ok(evals)
     }
 
@@ -496,8 +502,9 @@ impl Estimator for Race {
 /// Times the beam estimate of the same traced passes on the CPU and on the GPU.
 pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
     println!(
-        "{:<22} {:>9} {:>8} {:>10} {:>10} {:>8} {:>12} {:>12} {:>12} {:>9} {:>8}",
+        "{:<22} {:<7} {:>9} {:>8} {:>10} {:>10} {:>8} {:>12} {:>12} {:>12} {:>9} {:>8}",
         "scene",
+        "primary",
         "size",
         "paths",
         "CPU ms/ps",
@@ -518,22 +525,32 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
             anyhow::bail!("no GPU adapter to measure (try --device gpu)");
         };
         adapter = gpu.describe();
-        let origin = tracer.camera().origin();
-        let gpu = GpuBeams::new(gpu, tracer.media(), origin, s.width * s.height)?;
-        let out = Arc::new(Mutex::new(DeviceRace::default()));
+        let mut paths = vec![PrimaryPath::Gather];
+        if PrimaryPath::Auto.resolve(&gpu, s.width, s.height)? == PrimaryPath::Raster {
+            paths.insert(0, PrimaryPath::Raster);
+        }
+        let gpus = paths
+            .iter()
+            .map(|&p| GpuBeams::new(gpu.clone(), tracer.media(), tracer.camera(), p))
+            .collect::<PpbResult<Vec<_>>>()?;
+        let out = Arc::new(Mutex::new(
+            paths.iter().map(|_| DeviceRace::default()).collect(),
+        ));
         let race = Race {
-            gpu,
+            gpus,
             out: out.clone(),
         };
         let mut session = Session::new(tracer, Box::new(race));
         session.run(1..=args.bench.passes, |_, _| {
             Ok::<_, anyhow::Error>(Flow::Continue)
         })?;
-        let r = out.lock().unwrap_or_else(|e| e.into_inner());
-        let n = args.bench.passes.max(1) as f64;
-        println!(
-            "{:<22} {:>9} {:>8} {:>10.1} {:>10.1} {:>8.2} {:>12.0} {:>12.3e} {:>12.3e} {:>9.1e} {:>8}",
+        let races = out.lock().unwrap_or_else(|e| e.into_inner());
+        for (path, r) in paths.iter().zip(races.iter()) {
+            let n = args.bench.passes.max(1) as f64;
+            println!(
+            "{:<22} {:<7} {:>9} {:>8} {:>10.1} {:>10.1} {:>8.2} {:>12.0} {:>12.3e} {:>12.3e} {:>9.1e} {:>8}",
             scene_name(scene),
+            format!("{path:?}").to_lowercase(),
             format!("{}x{}", s.width, s.height),
             s.light_paths,
             1e3 * r.cpu_seconds / n,
@@ -545,10 +562,12 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
             r.diff.rel_l1(),
             r.diff.off_pixels
         );
+        }
     }
     println!(
         "(GPU: {adapter}; times per pass of the beam estimate alone on the same traced passes, \
-         GPU including segment/BVH upload; pairs = beam-segment crossings within the radius; \
+         GPU including segment/BVH upload; primary: how the GPU estimated primary segments \
+         (raster: beam quads, where the adapter can blend float32 targets; gather: BVH queries); pairs = beam-segment crossings within the radius; \
          rel diff = sum|GPU - CPU| / sum CPU over all passes; px>1e-3 = pixels (all passes) \
          differing by more than 1e-3 relative; CPU threads: {})",
         rayon::current_num_threads()

@@ -99,7 +99,7 @@ fn contribution(o: Vec3, p: &Primary, beam: &BeamPiece, r: f32, media: &Media) -
 
 /// A beam projected to the film: a 2D segment whose half-width in pixels varies linearly
 /// along it (from `h0` at `p0` to `h1` at `p1`).
-struct Line {
+pub(crate) struct Line {
     p0: Vec2,
     p1: Vec2,
     h0: f32,
@@ -116,7 +116,7 @@ const SLACK_PIXELS: f32 = 0.01;
 /// radius: a beam point within r of the pixel's ray, at depth z, projects within
 /// r sqrt(1 + k^2) pixel widths at depth z of the ray's film position
 /// (k: [`Pinhole::film_slope_bound`]).
-fn reach_per_radius(cam: &Pinhole) -> f32 {
+pub(crate) fn reach_per_radius(cam: &Pinhole) -> f32 {
     (1.0 + cam.film_slope_bound().powi(2)).sqrt()
 }
 
@@ -124,7 +124,7 @@ impl Line {
     /// The thick line of beam `b` of radius `r`, `reach` being [`reach_per_radius`]. 1/z
     /// is linear along the projected segment, so the half-width is too; it is evaluated at
     /// the clipped ends.
-    fn project(cam: &Pinhole, b: &Beam, r: f32, reach: f32) -> Option<Line> {
+    pub(crate) fn project(cam: &Pinhole, b: &Beam, r: f32, reach: f32) -> Option<Line> {
         let a = Vec3::from(b.origin);
         let d = Vec3::from(b.dir);
         let (mut s0, mut s1) = (0.0f32, b.length);
@@ -174,6 +174,23 @@ impl Line {
             ymin,
             ymax,
         })
+    }
+
+    /// The corners of a rectangle holding every pixel centre whose pixel can count: the
+    /// segment grown by its largest half-width plus the distance from a pixel's centre to
+    /// any film position in it (sqrt(1/2), rounded up), along and across it. In the order
+    /// of a two-triangle strip: start right, start left, end right, end left.
+    pub(crate) fn rectangle(&self) -> [Vec2; 4] {
+        let grow = self.h0.max(self.h1) + 0.75;
+        let d = self.p1 - self.p0;
+        let along = if d.length_squared() > 1e-12 {
+            d.normalize() * grow
+        } else {
+            Vec2::X * grow
+        };
+        let across = along.perp();
+        let (a, b) = (self.p0 - along, self.p1 + along);
+        [a - across, a + across, b - across, b + across]
     }
 
     /// Half-width at parameter u of the segment.

@@ -5,14 +5,13 @@
 //! segments' traversals was miscompiled by Mesa's lavapipe and llvmpipe alike: it lost
 //! crossings when a pixel had several segments, though each segment alone was right.)
 //!
-//! Why one BVH gather kernel rather than the original PPB's rasterized beam quads for
-//! primary rays: one kernel serves every camera segment (primary and after glass) with the
-//! same code as the CPU's BVH query, per-pixel sums are deterministic (no blending order),
-//! and it needs no float32-blendable render target (wgpu's GL backend has none). What we
-//! measured (`ppb bench-gpu`, README): on lavapipe, the only adapter here, this kernel is
-//! 30-50x slower than the CPU splat (lavapipe runs the divergent traversal on SIMD lanes of
-//! the same two cores), which is why `--device auto` skips software adapters. Rasterized
-//! quads were not built, and no hardware GPU was available to compare the two on.
+//! Primary segments can instead be rasterised ([`PrimaryPath::Raster`], the original
+//! PPB's beam quads): every beam becomes a film rectangle, the one the CPU splat's band
+//! lies in (`estimate::splat`), and a fragment per covered pixel evaluates the same term
+//! for that pixel's primary segment into an additively blended float32 target. Blending
+//! follows primitive order, so sums are in beam order as on the CPU. It needs
+//! float32-blendable targets (wgpu's GL backend has none), so the gather stays for those
+//! adapters and for segments after specular bounces.
 //!
 //! Pipelining: [`GpuBeams::submit`] uploads a pass and returns at once; the caller traces
 //! the next pass on the CPU while the GPU works, and the next `submit` (or a checkpoint)
@@ -21,14 +20,16 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
-use super::layout::{media_params, Chunk, Params, SegmentUpload};
+use super::layout::{media_params, BeamQuad, Chunk, Params, SegmentUpload};
 use super::Gpu;
 use crate::error::{Error, Result};
+use crate::estimate::splat::{reach_per_radius, Line};
 use crate::estimate::Estimator;
 use crate::film::Film;
 use crate::media::Media;
 use crate::pass::{TracedPass, Tracer};
-use glam::Vec3;
+use crate::transport::camera::Pinhole;
+use rayon::prelude::*;
 
 /// The kernel's source: its own file and the shared media code.
 pub const SHADER: &str = concat!(
@@ -39,6 +40,49 @@ pub const SHADER: &str = concat!(
 /// Segments or pixels per dispatch: long single dispatches can lose the device.
 pub const CHUNK: u32 = 65536;
 const WORKGROUP: u32 = 64;
+
+/// How the GPU estimates primary camera segments (`--gpu-primary`). Both give the CPU's
+/// sums; which is faster depends on the GPU and the scene (`ppb bench-gpu` times both).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrimaryPath {
+    /// Raster where the adapter can blend float32 targets of the image's size, else
+    /// gather.
+    Auto,
+    /// Beams drawn as film quads, one fragment per candidate pixel.
+    Raster,
+    /// A beam BVH query per primary segment, as for segments after specular bounces.
+    Gather,
+}
+
+impl PrimaryPath {
+    /// What `self` means on `gpu` for a `width` x `height` image; an error when raster is
+    /// asked for and the adapter cannot do it.
+    pub fn resolve(self, gpu: &Gpu, width: u32, height: u32) -> Result<PrimaryPath> {
+        let why_not = if !gpu
+            .device
+            .features()
+            .contains(wgpu::Features::FLOAT32_BLENDABLE)
+        {
+            Some("cannot blend into float32 targets".to_string())
+        } else if width.max(height) > gpu.limits.max_texture_dimension_2d {
+            Some(format!(
+                "has no {width}x{height} targets (largest side {})",
+                gpu.limits.max_texture_dimension_2d
+            ))
+        } else {
+            None
+        };
+        match (self, why_not) {
+            (PrimaryPath::Raster, Some(why)) => Err(Error::Gpu(format!(
+                "{} {why}: --gpu-primary raster is not possible (use gather)",
+                gpu.describe()
+            ))),
+            (PrimaryPath::Auto, Some(_)) | (PrimaryPath::Gather, _) => Ok(PrimaryPath::Gather),
+            (_, None) => Ok(PrimaryPath::Raster),
+        }
+    }
+}
 
 /// When the GPU ran one pass's estimate, and how long the CPU waited for it.
 #[derive(Clone, Copy, Debug)]
@@ -53,6 +97,8 @@ pub struct GpuTiming {
 #[derive(serde::Serialize, Default, Clone, Debug)]
 pub struct GpuStats {
     pub adapter: String,
+    /// How primary segments were estimated.
+    pub primary: Option<PrimaryPath>,
     pub passes: u32,
     /// Sum over passes of submission to completion of the estimate.
     pub estimate_seconds: f64,
@@ -138,8 +184,24 @@ fn storage(dev: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
     })
 }
 
+/// What rasterising primary segments needs.
+struct Raster {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    target: wgpu::TextureView,
+    primaries: Grow,
+    quads: Grow,
+    /// [`reach_per_radius`] of the camera.
+    reach: f32,
+}
+
 pub struct GpuBeams {
     gpu: Gpu,
+    camera: Pinhole,
+    raster: Option<Raster>,
+    /// The rasterised primary sums `pixel_main` adds (a 1x1 texture it never reads when
+    /// primaries are gathered).
+    primary_sums: wgpu::TextureView,
     per_segment: wgpu::ComputePipeline,
     per_pixel: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
@@ -155,15 +217,18 @@ pub struct GpuBeams {
     tr_steps: Grow,
     nodes: Grow,
     pieces: Grow,
-    origin: Vec3,
     pixels: u32,
     in_flight: Option<InFlight>,
     stats: GpuStats,
 }
 
 impl GpuBeams {
-    /// Compiles the kernel and uploads the media (fixed for a render).
-    pub fn new(gpu: Gpu, media: &Media, origin: Vec3, pixels: u32) -> Result<Self> {
+    /// Compiles the kernels and uploads the media (fixed for a render) for images of
+    /// `camera`, primary segments estimated as `primary` says.
+    pub fn new(gpu: Gpu, media: &Media, camera: &Pinhole, primary: PrimaryPath) -> Result<Self> {
+        let (width, height) = (camera.width(), camera.height());
+        let pixels = width * height;
+        let primary = primary.resolve(&gpu, width, height)?;
         let dev = &gpu.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -187,10 +252,28 @@ impl GpuBeams {
             })
         };
         let (per_segment, per_pixel) = (pipeline("segment_main"), pipeline("pixel_main"));
+        let raster = (primary == PrimaryPath::Raster).then(|| {
+            let layout = quad_layout(dev);
+            Raster {
+                pipeline: quad_pipeline(dev, &module, &layout),
+                layout,
+                target: sums_texture(dev, width, height, true),
+                primaries: Grow::new(dev, "primary segments"),
+                quads: Grow::new(dev, "beam quads"),
+                reach: reach_per_radius(camera),
+            }
+        });
+        let primary_sums = match &raster {
+            Some(r) => r.target.clone(),
+            None => sums_texture(dev, 1, 1, false),
+        };
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("beam_estimate.wgsl: {e}")));
         }
-        let (params, grid_words) = media_params(media)?;
+        let (mut params, grid_words) = media_params(media)?;
+        if raster.is_some() {
+            params.raster_width = width;
+        }
         let grid_bytes: &[u8] = if grid_words.is_empty() {
             &[0; 16]
         } else {
@@ -235,6 +318,9 @@ impl GpuBeams {
             nodes: Grow::new(dev, "beam BVH"),
             pieces: Grow::new(dev, "beam pieces"),
             gpu,
+            camera: *camera,
+            raster,
+            primary_sums,
             per_segment,
             per_pixel,
             layout,
@@ -244,11 +330,11 @@ impl GpuBeams {
             chunk_stride,
             grid_buf,
             accum,
-            origin,
             pixels,
             in_flight: None,
             stats: GpuStats {
                 adapter,
+                primary: Some(primary),
                 ..Default::default()
             },
         })
@@ -258,17 +344,29 @@ impl GpuBeams {
         &self.gpu
     }
 
+    /// How primary segments are estimated (never [`PrimaryPath::Auto`]).
+    pub fn primary(&self) -> PrimaryPath {
+        match self.raster {
+            Some(_) => PrimaryPath::Raster,
+            None => PrimaryPath::Gather,
+        }
+    }
+
     /// Uploads pass `t` and dispatches its estimate into the accumulator; returns the
     /// previous pass's timing (after waiting for it) if one was in flight.
     pub fn submit(&mut self, t: &TracedPass, media: &Media) -> Result<Option<GpuTiming>> {
         let prev = self.wait()?;
         let start = Instant::now();
-        let map = match &t.beam_map {
-            Some(m) if !t.beams.is_empty() && !media.is_empty() => m,
-            _ => return Ok(prev),
+        if t.beams.is_empty() || media.is_empty() || (self.raster.is_none() && t.beam_map.is_none())
+        {
+            return Ok(prev);
+        }
+        let (nodes, pieces) = match &t.beam_map {
+            Some(map) => (map.nodes(), map.pieces()),
+            None => (Vec::new(), &[][..]),
         };
-        let nodes = map.nodes();
-        let segs = SegmentUpload::build(self.origin, &t.camera, media);
+        let origin = self.camera.origin();
+        let segs = SegmentUpload::build(origin, &t.camera, media, self.raster.is_some());
         if segs.pixel_first.len() != self.pixels as usize + 1 {
             return Err(Error::Gpu("pass size differs from the estimator's".into()));
         }
@@ -283,8 +381,8 @@ impl GpuBeams {
         self.tr_steps
             .write(&self.gpu, bytemuck::cast_slice(&segs.tr_steps))?;
         self.nodes.write(&self.gpu, bytemuck::cast_slice(&nodes))?;
-        self.pieces
-            .write(&self.gpu, bytemuck::cast_slice(map.pieces()))?;
+        self.pieces.write(&self.gpu, bytemuck::cast_slice(pieces))?;
+        let quads = self.write_quads(t, &segs)?;
         let n_segs = segs.segments.len() as u32;
         self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
         let seg_chunks = chunks(n_segs);
@@ -308,6 +406,9 @@ impl GpuBeams {
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        if let Some(r) = &self.raster {
+            self.draw_quads(r, &mut enc, quads);
+        }
         let passes = seg_chunks
             .iter()
             .map(|c| (&self.per_segment, c))
@@ -335,6 +436,65 @@ impl GpuBeams {
         });
         self.check()?;
         Ok(prev)
+    }
+
+    /// Uploads the primary segments and the quads of the pass's beams when primaries are
+    /// rasterised; returns the number of quads.
+    fn write_quads(&mut self, t: &TracedPass, segs: &SegmentUpload) -> Result<u32> {
+        let Some(r) = &mut self.raster else {
+            return Ok(0);
+        };
+        let (cam, radius, reach) = (&self.camera, t.beam_radius, r.reach);
+        let (w, h) = (cam.width(), cam.height());
+        let quads: Vec<BeamQuad> = t
+            .beams
+            .par_iter()
+            .enumerate()
+            .filter_map(|(i, b)| {
+                let line = Line::project(cam, b, radius, reach)?;
+                Some(BeamQuad::new(line.rectangle(), b, i as u32, w, h))
+            })
+            .collect();
+        r.primaries
+            .write(&self.gpu, bytemuck::cast_slice(&segs.primaries))?;
+        r.quads.write(&self.gpu, bytemuck::cast_slice(&quads))?;
+        Ok(quads.len() as u32)
+    }
+
+    /// Draws `count` beam quads into the cleared primary target.
+    fn draw_quads(&self, r: &Raster, enc: &mut wgpu::CommandEncoder, count: u32) {
+        let bind = bind_group(
+            &self.gpu.device,
+            &r.layout,
+            &[
+                (0, self.params_buf.as_entire_binding()),
+                (4, self.tr_steps.buf.as_entire_binding()),
+                (7, self.grid_buf.as_entire_binding()),
+                (11, r.primaries.buf.as_entire_binding()),
+                (12, r.quads.buf.as_entire_binding()),
+            ],
+        );
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("beam quads"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &r.target,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        if count > 0 {
+            pass.set_pipeline(&r.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.draw(0..6, 0..count);
+        }
     }
 
     /// Waits for the pass in flight, if any.
@@ -435,22 +595,14 @@ impl GpuBeams {
             whole(&self.grid_buf),
             whole(&self.accum),
             whole(&self.seg_out.buf),
+            wgpu::BindingResource::TextureView(&self.primary_sums),
         ];
-        let entries: Vec<wgpu::BindGroupEntry> = resources
+        let entries: Vec<(u32, wgpu::BindingResource)> = resources
             .into_iter()
             .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
+            .map(|(i, r)| (i as u32, r))
             .collect();
-        self.gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("beam estimate"),
-                layout: &self.layout,
-                entries: &entries,
-            })
+        bind_group(&self.gpu.device, &self.layout, &entries)
     }
 }
 
@@ -459,8 +611,9 @@ impl Estimator for GpuBeams {
         self.gpu.describe()
     }
 
+    /// Gathered segments walk the beam BVH; rasterised primaries do not.
     fn needs_beam_map(&self) -> bool {
-        true
+        self.raster.is_none()
     }
 
     fn estimate(
@@ -491,6 +644,121 @@ impl Estimator for GpuBeams {
     }
 }
 
+fn bind_group(
+    dev: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    resources: &[(u32, wgpu::BindingResource)],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = resources
+        .iter()
+        .map(|(binding, resource)| wgpu::BindGroupEntry {
+            binding: *binding,
+            resource: resource.clone(),
+        })
+        .collect();
+    dev.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("beam estimate"),
+        layout,
+        entries: &entries,
+    })
+}
+
+/// The target rasterised primary sums blend into (`render`), or a 1x1 stand-in.
+fn sums_texture(dev: &wgpu::Device, width: u32, height: u32, render: bool) -> wgpu::TextureView {
+    let mut usage = wgpu::TextureUsages::TEXTURE_BINDING;
+    if render {
+        usage |= wgpu::TextureUsages::RENDER_ATTACHMENT;
+    }
+    dev.create_texture(&wgpu::TextureDescriptor {
+        label: Some("primary sums"),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Float,
+        usage,
+        view_formats: &[],
+    })
+    .create_view(&wgpu::TextureViewDescriptor::default())
+}
+
+/// Bindings of `quad_vs` and `quad_fs`.
+fn quad_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
+    let read = wgpu::BufferBindingType::Storage { read_only: true };
+    let frag = wgpu::ShaderStages::FRAGMENT;
+    let entries = [
+        (0, wgpu::BufferBindingType::Uniform, frag),
+        (4, read, frag),
+        (7, read, frag),
+        (11, read, frag),
+        (12, read, frag | wgpu::ShaderStages::VERTEX),
+    ]
+    .map(|(binding, ty, visibility)| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    });
+    dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("beam quads"),
+        entries: &entries,
+    })
+}
+
+/// Beam quads blended additively into the float32 primary target.
+fn quad_pipeline(
+    dev: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    bindings: &wgpu::BindGroupLayout,
+) -> wgpu::RenderPipeline {
+    let layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("beam quads"),
+        bind_group_layouts: &[Some(bindings)],
+        immediate_size: 0,
+    });
+    let add = wgpu::BlendComponent {
+        src_factor: wgpu::BlendFactor::One,
+        dst_factor: wgpu::BlendFactor::One,
+        operation: wgpu::BlendOperation::Add,
+    };
+    dev.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("beam quads"),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some("quad_vs"),
+            compilation_options: Default::default(),
+            buffers: &[],
+        },
+        primitive: wgpu::PrimitiveState::default(),
+        depth_stencil: None,
+        multisample: wgpu::MultisampleState::default(),
+        fragment: Some(wgpu::FragmentState {
+            module,
+            entry_point: Some("quad_fs"),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format: wgpu::TextureFormat::Rgba32Float,
+                blend: Some(wgpu::BlendState {
+                    color: add,
+                    alpha: add,
+                }),
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
 /// `count` items in dispatches of at most [`CHUNK`].
 fn chunks(count: u32) -> Vec<Chunk> {
     (0..count.div_ceil(CHUNK))
@@ -511,7 +779,8 @@ fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
     })
 }
 
-/// Bindings 0-9 of `beam_estimate.wgsl`; the chunk uniform (1) takes a dynamic offset.
+/// Bindings 0-10 of `beam_estimate.wgsl` for the kernels; the chunk uniform (1) takes a
+/// dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
         |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
@@ -545,6 +814,17 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
             false,
         ),
     ];
+    let sums = wgpu::BindGroupLayoutEntry {
+        binding: 10,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    };
+    let entries: Vec<_> = entries.into_iter().chain([sums]).collect();
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),
         entries: &entries,

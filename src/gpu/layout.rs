@@ -5,13 +5,15 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
+use crate::estimate::beams::BeamPiece;
 use crate::geometry::Ray;
 use crate::media::grid::{Grid, SEARCH_SLOT};
 use crate::media::homogeneous::ray_box;
 use crate::media::{GridMedium, Media};
 use crate::transport::camera::CameraPass;
 use crate::transport::transmittance::SegmentTr;
-use glam::Vec3;
+use crate::transport::Beam;
+use glam::{Vec2, Vec3};
 
 /// Homogeneous media and grids the uniform block has room for.
 pub const MAX_BOXES: usize = 16;
@@ -55,7 +57,8 @@ pub struct Params {
     pub radius: f32,
     pub box_count: u32,
     pub grid_count: u32,
-    pub _pad: u32,
+    /// The image width when primary segments are rasterised, 0 when they are gathered.
+    pub raster_width: u32,
     pub boxes: [MediumBox; MAX_BOXES],
     pub grids: [GridMeta; MAX_GRIDS],
 }
@@ -100,7 +103,7 @@ pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
         radius: 0.0,
         box_count: media.media.len() as u32,
         grid_count: media.grids.len() as u32,
-        _pad: 0,
+        raster_width: 0,
         boxes: [MediumBox::default(); MAX_BOXES],
         grids: [GridMeta::default(); MAX_GRIDS],
     };
@@ -174,52 +177,90 @@ fn grid_meta(g: &GridMedium, data: &mut Vec<u32>) -> Result<GridMeta> {
     })
 }
 
-/// One pass's camera segments in pixel order, the per-pixel ranges into them
-/// (`pixels + 1` entries) and the transmittance steps.
+/// A beam's rectangle on the film for the rasterised primary estimate: its corners in
+/// normalised device coordinates (two-triangle strip order) and the beam itself.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct BeamQuad {
+    pub corners: [[f32; 2]; 4],
+    pub piece: BeamPiece,
+}
+
+impl BeamQuad {
+    /// The quad of beam `index` whose film rectangle is `rect` (pixels, y down) on a
+    /// `width` x `height` image.
+    pub fn new(rect: [Vec2; 4], beam: &Beam, index: u32, width: u32, height: u32) -> Self {
+        let (w, h) = (width as f32, height as f32);
+        BeamQuad {
+            corners: rect.map(|c| [2.0 * c.x / w - 1.0, 1.0 - 2.0 * c.y / h]),
+            piece: BeamPiece::whole(beam, index),
+        }
+    }
+}
+
+/// One pass's camera segments as the kernels read them: segments in pixel order with
+/// per-pixel ranges into them (`pixels + 1` entries), and the transmittance steps. When
+/// primary segments are rasterised they are kept apart, one per pixel (an empty one where
+/// the ray misses the media), and `segments` holds the later ones only.
 #[derive(Default)]
 pub struct SegmentUpload {
     pub segments: Vec<Segment>,
     pub pixel_first: Vec<u32>,
+    pub primaries: Vec<Segment>,
     pub tr_steps: Vec<[f32; 2]>,
 }
 
 impl SegmentUpload {
-    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media) -> SegmentUpload {
-        let Some(bounds) = media.bounds() else {
-            return SegmentUpload {
-                segments: Vec::new(),
-                pixel_first: vec![0; pass.primaries.len() + 1],
-                tr_steps: Vec::new(),
-            };
-        };
+    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media, raster: bool) -> SegmentUpload {
+        let pixels = pass.primaries.len();
         let mut out = SegmentUpload {
-            segments: Vec::with_capacity(pass.primaries.len()),
-            pixel_first: Vec::with_capacity(pass.primaries.len() + 1),
+            segments: Vec::with_capacity(if raster { 0 } else { pixels }),
+            pixel_first: Vec::with_capacity(pixels + 1),
+            primaries: Vec::with_capacity(if raster { pixels } else { 0 }),
             tr_steps: Vec::new(),
+        };
+        let Some(bounds) = media.bounds() else {
+            out.pixel_first.resize(pixels + 1, 0);
+            out.primaries
+                .resize(if raster { pixels } else { 0 }, Segment::default());
+            return out;
         };
         let mut next = pass.secondary.iter().peekable();
         for (pixel, p) in pass.primaries.iter().enumerate() {
             out.pixel_first.push(out.segments.len() as u32);
-            out.push(&bounds, Ray::new(origin, p.dir), p.t_surf, Vec3::ONE, &p.tr);
+            let primary = out.segment(&bounds, Ray::new(origin, p.dir), p.t_surf, Vec3::ONE, &p.tr);
+            match (raster, primary) {
+                (true, s) => out.primaries.push(s.unwrap_or_default()),
+                (false, Some(s)) => out.segments.push(s),
+                (false, None) => {}
+            }
             while let Some(s) = next.next_if(|s| s.pixel as usize == pixel) {
-                out.push(&bounds, s.ray, s.t_surf, s.beta, &s.tr);
+                if let Some(seg) = out.segment(&bounds, s.ray, s.t_surf, s.beta, &s.tr) {
+                    out.segments.push(seg);
+                }
             }
         }
         out.pixel_first.push(out.segments.len() as u32);
         out
     }
 
-    /// Adds the segment [0, t_surf) of `ray`, ended where it leaves the media's bounds
+    /// The segment [0, t_surf) of `ray`, ended where it leaves the media's bounds
     /// (beyond, sigma_s and so every term is 0; an infinite end also upsets some shader
-    /// compilers: lavapipe dropped crossings on segments ending at f32::MAX). Segments
-    /// that miss the bounds carry no beam radiance and are left out.
-    fn push(&mut self, b: &[Vec3; 2], ray: Ray, t_surf: f32, beta: Vec3, tr: &SegmentTr) {
-        let Some((_, t1)) = ray_box(&ray, b, 0.0, t_surf) else {
-            return;
-        };
+    /// compilers: lavapipe dropped crossings on segments ending at f32::MAX), with its
+    /// transmittance steps appended. None for a segment that misses the bounds: it
+    /// carries no beam radiance.
+    fn segment(
+        &mut self,
+        b: &[Vec3; 2],
+        ray: Ray,
+        t_surf: f32,
+        beta: Vec3,
+        tr: &SegmentTr,
+    ) -> Option<Segment> {
+        let (_, t1) = ray_box(&ray, b, 0.0, t_surf)?;
         let tr_first = self.tr_steps.len() as u32;
         tr.steps(&mut self.tr_steps);
-        self.segments.push(Segment {
+        Some(Segment {
             origin: ray.o.into(),
             t0: 0.0,
             dir: ray.d.into(),
@@ -228,6 +269,6 @@ impl SegmentUpload {
             tr_first,
             tr_count: self.tr_steps.len() as u32 - tr_first,
             _pad: [0; 3],
-        });
+        })
     }
 }

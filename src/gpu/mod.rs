@@ -94,9 +94,10 @@ pub fn open(kind: DeviceKind) -> Result<Option<Gpu>> {
     };
     let info = adapter.get_info();
     let limits = adapter.limits();
+    // Blending into float32 targets lets primary segments be rasterised (`gpu::beams`).
     let desc = wgpu::DeviceDescriptor {
         label: Some("ppb"),
-        required_features: wgpu::Features::empty(),
+        required_features: adapter.features() & wgpu::Features::FLOAT32_BLENDABLE,
         required_limits: limits.clone(),
         ..Default::default()
     };
