@@ -103,20 +103,24 @@ fn free_paths_match(media: &Media, ray: &Ray, tmax: f32, mode: Mode, label: &str
     };
     let n = 20_000usize;
     let mut gpu = GpuFreePaths::new(g, media).expect("gpu free paths");
+    let start = std::time::Instant::now();
     let got = gpu
         .free_paths(&[fp_ray(ray, tmax, 7)], n as u32, mode)
         .expect("free paths");
+    let gpu_s = start.elapsed().as_secs_f64();
     assert_eq!(got.len(), n);
     let mut a: Vec<f32> = got.iter().map(|s| s.t.unwrap_or(f32::INFINITY)).collect();
     let fp = FreePath { media, mode };
     let mut rng = Rng::new(11, 3);
     let mut c = Counters::default();
+    let start = std::time::Instant::now();
     let mut b: Vec<f32> = (0..n)
         .map(|_| {
             fp.sample_grids(ray, tmax, &mut rng, &mut c)
                 .unwrap_or(f32::INFINITY)
         })
         .collect();
+    let cpu_s = start.elapsed().as_secs_f64();
     assert!(a.iter().all(|&t| t.is_infinite() || (t > 0.0 && t < tmax)));
     let escaped = a.iter().filter(|t| t.is_infinite()).count();
     let d = ks2(&mut a, &mut b);
@@ -125,7 +129,8 @@ fn free_paths_match(media: &Media, ray: &Ray, tmax: f32, mode: Mode, label: &str
     let cpu_lookups = c.density_lookups as f64 / n as f64;
     eprintln!(
         "{label} {mode:?}: KS D {d:.4} (critical {crit:.4}), {escaped} of {n} escaped, \
-         lookups per path GPU {gpu_lookups:.3} CPU {cpu_lookups:.3}"
+         lookups per path GPU {gpu_lookups:.3} CPU {cpu_lookups:.3}, \
+         {gpu_s:.3} s GPU (batch, with upload and readback) vs {cpu_s:.3} s CPU (one thread)"
     );
     assert!(d < crit, "{label} {mode:?}: KS D {d} >= {crit}");
     assert!(
@@ -218,7 +223,22 @@ fn ratio_tracking_matches_quadrature_on_cloud_hg() {
     let (t0, t1) = media.grids[0]
         .interval(&ray, 10.0)
         .expect("the ray crosses the cloud");
-    let dists: Vec<f32> = (1..=4).map(|k| t0 + (t1 - t0) * k as f32 / 8.0).collect();
+    // Where the quadrature transmittance falls to 0.8, 0.5, 0.2 and 0.05 (bisection).
+    let dists: Vec<f32> = [0.8, 0.5, 0.2, 0.05]
+        .iter()
+        .map(|&target| {
+            let (mut a, mut b) = (t0, t1);
+            for _ in 0..24 {
+                let m = 0.5 * (a + b);
+                if quad_tr(&media, &ray, m) > target {
+                    a = m;
+                } else {
+                    b = m;
+                }
+            }
+            0.5 * (a + b)
+        })
+        .collect();
     for mode in [Mode::Adaptive, Mode::Woodcock] {
         ratio_matches(&media, &ray, &dists, mode, "cloud-hg");
     }

@@ -219,7 +219,7 @@ impl GpuFreePaths {
     /// `ratio_tr_to` of each ray at each of `dists[ray * m .. (ray + 1) * m]` (m =
     /// dists.len() / rays.len()), with the ray's seed: one realization per ray.
     pub fn ratio_tr(&mut self, rays: &[FpRay], dists: &[f32], mode: Mode) -> Result<Vec<GpuRatio>> {
-        if rays.is_empty() || dists.len() % rays.len() != 0 {
+        if rays.is_empty() || !dists.len().is_multiple_of(rays.len()) {
             return Err(Error::Other(
                 "ratio_tr: the distances must be a whole number per ray".into(),
             ));
@@ -496,7 +496,11 @@ mod tests {
             assert_eq!(*span as usize, size, "size of {name}");
             for (f, off) in fields {
                 let m = members.iter().find(|m| m.name.as_deref() == Some(*f));
-                assert_eq!(m.map(|m| m.offset as usize), Some(*off), "offset of {name}.{f}");
+                assert_eq!(
+                    m.map(|m| m.offset as usize),
+                    Some(*off),
+                    "offset of {name}.{f}"
+                );
             }
         };
         check(
