@@ -22,11 +22,14 @@ use ppb::transport::Counters;
 /// 20^3 voxels of (i / 19) x (1 to 2 by (j + k) mod 3), 0.1 m apart, sigma_t = 2 density
 /// (the ramp of the transmittance tests).
 fn ramp_media() -> Media {
-    let mut b = GridBuilder::new(
-        "density",
-        0.0,
-        DAffine3::from_scale(glam::DVec3::splat(0.1)),
-    );
+    Media::with_grids(vec![], vec![ramp_grid(0.0, 2.0)])
+}
+
+/// The ramp grid shifted by `dx` (m) along x, with sigma_t = `scale` density.
+fn ramp_grid(dx: f64, scale: f32) -> Heterogeneous {
+    let xf = DAffine3::from_translation(glam::DVec3::new(dx, 0.0, 0.0))
+        * DAffine3::from_scale(glam::DVec3::splat(0.1));
+    let mut b = GridBuilder::new("density", 0.0, xf);
     for i in 0..20 {
         for j in 0..20 {
             for k in 0..20 {
@@ -38,13 +41,19 @@ fn ramp_media() -> Media {
     let g = GridMedium::new(
         Arc::new(b.finish()),
         DAffine3::IDENTITY,
-        2.0,
+        scale,
         Vec3::ONE,
         Phase::ISOTROPIC,
         "ramp".into(),
         [0; 32],
     );
-    Media::with_grids(vec![], vec![Heterogeneous::build(g, 5)])
+    Heterogeneous::build(g, 5)
+}
+
+/// Two overlapping grids (extinctions add): the nearest collision over grids, later grids
+/// tracked up to the nearest so far, a stream per grid.
+fn two_ramps() -> Media {
+    Media::with_grids(vec![], vec![ramp_grid(0.0, 1.2), ramp_grid(0.9, 0.8)])
 }
 
 fn ramp_ray() -> (Ray, f32) {
@@ -149,6 +158,15 @@ fn free_paths_match_cpu_on_ramp() {
 }
 
 #[test]
+fn free_paths_match_cpu_through_two_grids() {
+    let media = two_ramps();
+    let (ray, _) = ramp_ray();
+    for mode in [Mode::Adaptive, Mode::Woodcock] {
+        free_paths_match(&media, &ray, 4.0, mode, "two ramps");
+    }
+}
+
+#[test]
 fn free_paths_match_cpu_on_cloud_hg() {
     let (media, ray, tmax) = cloud_media();
     for mode in [Mode::Adaptive, Mode::Woodcock] {
@@ -214,6 +232,15 @@ fn ratio_tracking_matches_quadrature_on_ramp() {
     let (ray, _) = ramp_ray();
     for mode in [Mode::Adaptive, Mode::Woodcock] {
         ratio_matches(&media, &ray, &[0.8, 1.2, 1.6, 2.0, 2.4, 3.0], mode, "ramp");
+    }
+}
+
+#[test]
+fn ratio_tracking_matches_quadrature_through_two_grids() {
+    let media = two_ramps();
+    let (ray, _) = ramp_ray();
+    for mode in [Mode::Adaptive, Mode::Woodcock] {
+        ratio_matches(&media, &ray, &[0.8, 1.6, 2.4, 3.2, 4.0], mode, "two ramps");
     }
 }
 
