@@ -2,6 +2,7 @@
 //! choice ([`open`]), the shared buffer layouts ([`layout`]) and the estimator
 //! ([`beams::GpuBeams`]). The CPU path in `estimate::cpu` computes the same sums.
 pub mod beams;
+pub mod freepath;
 pub mod layout;
 
 use std::sync::{Arc, Mutex};

@@ -1,0 +1,549 @@
+//! Free-path sampling on the GPU (`shaders/freepath.wgsl`): the octree walk, delta and
+//! ratio tracking in WGSL, so a kernel can estimate camera-segment transmittance itself
+//! instead of receiving per-pass transmittance steps. The media ([`media_params`]) and
+//! every grid's octree nodes ([`octree_upload`]) are uploaded once. [`GpuFreePaths`] runs
+//! test kernels (`shaders/freepath_test.wgsl`) on batches of rays, so the WGSL sampler can
+//! be checked against the CPU's (`transport::freepath::FreePath`).
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::beams::CHUNK;
+use super::layout::{media_params, MAX_GRIDS};
+use super::Gpu;
+use crate::error::{Error, Result};
+use crate::majorant::Node;
+use crate::media::Media;
+use crate::transport::freepath::Mode;
+
+/// The functions a kernel appends to use free-path sampling (after its own source; it
+/// also appends `media.wgsl`).
+pub const FREEPATH_WGSL: &str = include_str!("../../shaders/freepath.wgsl");
+
+/// The test kernels' source: their file, the free-path functions and the media code.
+pub const SHADER: &str = concat!(
+    include_str!("../../shaders/freepath_test.wgsl"),
+    include_str!("../../shaders/freepath.wgsl"),
+    include_str!("../../shaders/media.wgsl")
+);
+
+const WORKGROUP: u32 = 64;
+
+/// Where each grid's octree starts in the concatenated node buffer, each grid's global
+/// majorant (Woodcock) and the mode; `Octrees` in `freepath.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Octrees {
+    pub roots: [[u32; 4]; 2],
+    pub majorants: [[f32; 4]; 2],
+    /// 0: adaptive (the octree's leaves), 1: Woodcock.
+    pub mode: u32,
+    pub _pad: [u32; 3],
+}
+
+/// One test ray: [0, tmax] along `dir` from `origin`, its realizations keyed by `seed`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct FpRay {
+    pub origin: [f32; 3],
+    pub tmax: f32,
+    pub dir: [f32; 3],
+    pub seed: u32,
+}
+
+/// The items of one dispatch and what they share; `FpJob` in `freepath_test.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct FpJob {
+    pub first: u32,
+    pub count: u32,
+    pub per_ray: u32,
+    pub grid: u32,
+}
+
+/// One GPU free path: the distance to the collision (None: the ray got through), with
+/// its density lookups and majorant segments.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuFreePath {
+    pub t: Option<f32>,
+    pub lookups: u32,
+    pub segments: u32,
+}
+
+/// One ratio-tracking estimate and its density lookups.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuRatio {
+    pub tr: f32,
+    pub lookups: u32,
+}
+
+/// A majorant segment of a walk: [t0, t1] with the leaf's bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuSegment {
+    pub t0: f32,
+    pub t1: f32,
+    pub majorant: f32,
+    pub minorant: f32,
+}
+
+fn mode_word(mode: Mode) -> u32 {
+    match mode {
+        Mode::Adaptive => 0,
+        Mode::Woodcock => 1,
+    }
+}
+
+/// Every grid's octree nodes, concatenated (children indices stay relative to their
+/// grid's root, which `Octrees::roots` locates), and the [`Octrees`] block (mode 0).
+pub fn octree_upload(media: &Media) -> Result<(Octrees, Vec<Node>)> {
+    if media.grids.len() > MAX_GRIDS {
+        return Err(Error::Other(format!(
+            "the GPU handles up to {MAX_GRIDS} grids; this scene has {}",
+            media.grids.len()
+        )));
+    }
+    let mut o = Octrees::default();
+    let mut nodes = Vec::new();
+    for (i, g) in media.grids.iter().enumerate() {
+        o.roots[i / 4][i % 4] = u32::try_from(nodes.len())
+            .map_err(|_| Error::Other("octrees too large for the GPU".into()))?;
+        o.majorants[i / 4][i % 4] = g.majorant();
+        nodes.extend_from_slice(&g.octree().nodes);
+    }
+    if nodes.is_empty() {
+        // A binding may not be empty.
+        nodes.push(Node::default());
+    }
+    Ok((o, nodes))
+}
+
+/// The free-path test kernels with the media and octrees uploaded.
+pub struct GpuFreePaths {
+    gpu: Gpu,
+    free_path: wgpu::ComputePipeline,
+    ratio: wgpu::ComputePipeline,
+    walk: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    octrees: Octrees,
+    params_buf: wgpu::Buffer,
+    grid_buf: wgpu::Buffer,
+    nodes_buf: wgpu::Buffer,
+    octrees_buf: wgpu::Buffer,
+    job_stride: u64,
+}
+
+impl GpuFreePaths {
+    /// Compiles the kernels and uploads the media and octrees (once).
+    pub fn new(gpu: Gpu, media: &Media) -> Result<Self> {
+        let dev = &gpu.device;
+        let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("freepath_test.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let layout = bind_group_layout(dev);
+        let pipeline_layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("free paths"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |entry: &str| {
+            dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let (free_path, ratio, walk) = (
+            pipeline("free_path_main"),
+            pipeline("ratio_main"),
+            pipeline("walk_main"),
+        );
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Gpu(format!("freepath_test.wgsl: {e}")));
+        }
+        let (params, grid_words) = media_params(media)?;
+        let (octrees, nodes) = octree_upload(media)?;
+        let grid_bytes: &[u8] = if grid_words.is_empty() {
+            &[0; 16]
+        } else {
+            bytemuck::cast_slice(&grid_words)
+        };
+        let grid_buf = storage_init(&gpu, "grid data", grid_bytes)?;
+        let nodes_buf = storage_init(&gpu, "octree nodes", bytemuck::cast_slice(&nodes))?;
+        let uniform = |label: &str, contents: &[u8]| {
+            dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            })
+        };
+        let params_buf = uniform("params", bytemuck::bytes_of(&params));
+        let octrees_buf = uniform("octrees", bytemuck::bytes_of(&octrees));
+        let job_stride = (gpu.limits.min_uniform_buffer_offset_alignment as u64)
+            .max(std::mem::size_of::<FpJob>() as u64);
+        let g = GpuFreePaths {
+            gpu,
+            free_path,
+            ratio,
+            walk,
+            layout,
+            octrees,
+            params_buf,
+            grid_buf,
+            nodes_buf,
+            octrees_buf,
+            job_stride,
+        };
+        g.check()?;
+        Ok(g)
+    }
+
+    /// `k` free paths through the grids per ray (delta tracking, `FreePath::sample_grids`),
+    /// ray after ray; path j of a ray is keyed by (ray seed, j).
+    pub fn free_paths(&mut self, rays: &[FpRay], k: u32, mode: Mode) -> Result<Vec<GpuFreePath>> {
+        let items = items(rays.len(), k)?;
+        let out = self.run(Kernel::FreePath, rays, &[0.0], items, k, 0, mode)?;
+        Ok(out
+            .iter()
+            .map(|w| GpuFreePath {
+                t: (w[1] != 0).then_some(f32::from_bits(w[0])),
+                lookups: w[2],
+                segments: w[3],
+            })
+            .collect())
+    }
+
+    /// `ratio_tr_to` of each ray at each of `dists[ray * m .. (ray + 1) * m]` (m =
+    /// dists.len() / rays.len()), with the ray's seed: one realization per ray.
+    pub fn ratio_tr(&mut self, rays: &[FpRay], dists: &[f32], mode: Mode) -> Result<Vec<GpuRatio>> {
+        if rays.is_empty() || !dists.len().is_multiple_of(rays.len()) {
+            return Err(Error::Other(
+                "ratio_tr: the distances must be a whole number per ray".into(),
+            ));
+        }
+        let m = (dists.len() / rays.len()) as u32;
+        let items = items(rays.len(), m)?;
+        let out = self.run(Kernel::Ratio, rays, dists, items, m, 0, mode)?;
+        Ok(out
+            .iter()
+            .map(|w| GpuRatio {
+                tr: f32::from_bits(w[0]),
+                lookups: w[1],
+            })
+            .collect())
+    }
+
+    /// The majorant segments of grid `grid` along each ray over [0, tmax], at most `max`
+    /// per ray (`Heterogeneous::majorants`).
+    pub fn walk(
+        &mut self,
+        rays: &[FpRay],
+        grid: u32,
+        max: u32,
+        mode: Mode,
+    ) -> Result<Vec<Vec<GpuSegment>>> {
+        let n = u32::try_from(rays.len()).map_err(|_| Error::Other("too many rays".into()))?;
+        let out = self.run(Kernel::Walk, rays, &[0.0], n, max, grid, mode)?;
+        Ok(out
+            .chunks(max as usize + 1)
+            .map(|c| {
+                let count = (c[0][0] as usize).min(max as usize);
+                c[1..=count]
+                    .iter()
+                    .map(|w| GpuSegment {
+                        t0: f32::from_bits(w[0]),
+                        t1: f32::from_bits(w[1]),
+                        majorant: f32::from_bits(w[2]),
+                        minorant: f32::from_bits(w[3]),
+                    })
+                    .collect()
+            })
+            .collect())
+    }
+
+    /// Runs `kernel` on `items` items (chunks of [`CHUNK`]) and reads back its output.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        kernel: Kernel,
+        rays: &[FpRay],
+        dists: &[f32],
+        items: u32,
+        per_ray: u32,
+        grid: u32,
+        mode: Mode,
+    ) -> Result<Vec<[u32; 4]>> {
+        if rays.is_empty() || per_ray == 0 {
+            return Ok(Vec::new());
+        }
+        let dev = &self.gpu.device;
+        self.octrees.mode = mode_word(mode);
+        self.gpu
+            .queue
+            .write_buffer(&self.octrees_buf, 0, bytemuck::bytes_of(&self.octrees));
+        let rays_buf = storage_init(&self.gpu, "rays", bytemuck::cast_slice(rays))?;
+        let dists_buf = storage_init(&self.gpu, "distances", bytemuck::cast_slice(dists))?;
+        let slots = match kernel {
+            Kernel::Walk => items as u64 * (per_ray as u64 + 1),
+            _ => items as u64,
+        };
+        let size = slots * 16;
+        if size > self.gpu.limits.max_storage_buffer_binding_size {
+            return Err(Error::Gpu(format!(
+                "free-path output needs {size} bytes, over the storage binding limit"
+            )));
+        }
+        let out_buf = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("free-path output"),
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let jobs: Vec<FpJob> = (0..items.div_ceil(CHUNK))
+            .map(|k| FpJob {
+                first: k * CHUNK,
+                count: CHUNK.min(items - k * CHUNK),
+                per_ray,
+                grid,
+            })
+            .collect();
+        let table: Vec<u8> = jobs
+            .iter()
+            .flat_map(|j| {
+                let mut b = bytemuck::bytes_of(j).to_vec();
+                b.resize(self.job_stride as usize, 0);
+                b
+            })
+            .collect();
+        let job_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("jobs"),
+            contents: &table,
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let job = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &job_buf,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<FpJob>() as u64),
+        });
+        let resources = [
+            self.params_buf.as_entire_binding(),
+            job,
+            self.grid_buf.as_entire_binding(),
+            self.nodes_buf.as_entire_binding(),
+            self.octrees_buf.as_entire_binding(),
+            rays_buf.as_entire_binding(),
+            dists_buf.as_entire_binding(),
+            out_buf.as_entire_binding(),
+        ];
+        let entries: Vec<wgpu::BindGroupEntry> = resources
+            .into_iter()
+            .enumerate()
+            .map(|(i, resource)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource,
+            })
+            .collect();
+        let bind = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("free paths"),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        let pipeline = match kernel {
+            Kernel::FreePath => &self.free_path,
+            Kernel::Ratio => &self.ratio,
+            Kernel::Walk => &self.walk,
+        };
+        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("free-path readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        for (k, j) in jobs.iter().enumerate() {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &bind, &[(k as u64 * self.job_stride) as u32]);
+            pass.dispatch_workgroups(j.count.div_ceil(WORKGROUP), 1, 1);
+        }
+        enc.copy_buffer_to_buffer(&out_buf, 0, &staging, 0, size);
+        self.gpu.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        dev.poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the free paths: {e}")))?;
+        rx.recv()
+            .map_err(|_| Error::Gpu("free-path readback never completed".into()))?
+            .map_err(|e| Error::Gpu(format!("mapping the free paths: {e}")))?;
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| Error::Gpu(format!("reading the free paths: {e}")))?;
+        let data = bytemuck::cast_slice::<u8, [u32; 4]>(&view).to_vec();
+        drop(view);
+        staging.unmap();
+        self.check()?;
+        Ok(data)
+    }
+
+    fn check(&self) -> Result<()> {
+        match self.gpu.take_error() {
+            Some(e) => Err(Error::Gpu(e)),
+            None => Ok(()),
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Kernel {
+    FreePath,
+    Ratio,
+    Walk,
+}
+
+fn items(rays: usize, per_ray: u32) -> Result<u32> {
+    u32::try_from(rays as u64 * per_ray as u64)
+        .map_err(|_| Error::Other("too many free-path items for one batch".into()))
+}
+
+/// A read-only storage buffer holding `data` (16 zero bytes if empty: no binding may be).
+fn storage_init(gpu: &Gpu, label: &str, data: &[u8]) -> Result<wgpu::Buffer> {
+    if data.len() as u64 > gpu.limits.max_storage_buffer_binding_size {
+        return Err(Error::Gpu(format!(
+            "{label} needs {} bytes, over the adapter's storage binding limit of {}",
+            data.len(),
+            gpu.limits.max_storage_buffer_binding_size
+        )));
+    }
+    let contents: &[u8] = if data.is_empty() { &[0; 16] } else { data };
+    Ok(gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents,
+            usage: wgpu::BufferUsages::STORAGE,
+        }))
+}
+
+/// Bindings 0-7 of `freepath_test.wgsl`; the job uniform (1) takes a dynamic offset.
+fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
+    let entry =
+        |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty,
+                has_dynamic_offset: dynamic,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+    let read = wgpu::BufferBindingType::Storage { read_only: true };
+    let uniform = wgpu::BufferBindingType::Uniform;
+    let entries = [
+        entry(0, uniform, false),
+        entry(1, uniform, true),
+        entry(2, read, false),
+        entry(3, read, false),
+        entry(4, uniform, false),
+        entry(5, read, false),
+        entry(6, read, false),
+        entry(
+            7,
+            wgpu::BufferBindingType::Storage { read_only: false },
+            false,
+        ),
+    ];
+    dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("free paths"),
+        entries: &entries,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::layout::Params;
+    use std::mem::{offset_of, size_of};
+
+    /// The free-path shader (test kernels + freepath.wgsl + media.wgsl) parses and
+    /// validates, and its shared structs have the Rust `Pod` types' sizes and offsets.
+    #[test]
+    fn freepath_shader_validates_and_layouts_match() {
+        let module = naga::front::wgsl::parse_str(SHADER)
+            .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::empty(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
+        let check = |name: &str, size: usize, fields: &[(&str, usize)]| {
+            let ty = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("struct {name} missing from the shader"))
+                .1;
+            let naga::TypeInner::Struct { members, span } = &ty.inner else {
+                panic!("{name} is not a struct");
+            };
+            assert_eq!(*span as usize, size, "size of {name}");
+            for (f, off) in fields {
+                let m = members.iter().find(|m| m.name.as_deref() == Some(*f));
+                assert_eq!(
+                    m.map(|m| m.offset as usize),
+                    Some(*off),
+                    "offset of {name}.{f}"
+                );
+            }
+        };
+        check(
+            "Node",
+            size_of::<Node>(),
+            &[
+                ("majorant", offset_of!(Node, majorant)),
+                ("max", offset_of!(Node, max)),
+                ("minorant", offset_of!(Node, minorant)),
+                ("first_child", offset_of!(Node, first_child)),
+                ("depth", offset_of!(Node, depth)),
+            ],
+        );
+        check(
+            "Octrees",
+            size_of::<Octrees>(),
+            &[
+                ("roots", offset_of!(Octrees, roots)),
+                ("majorants", offset_of!(Octrees, majorants)),
+                ("mode", offset_of!(Octrees, mode)),
+            ],
+        );
+        check(
+            "FpRay",
+            size_of::<FpRay>(),
+            &[
+                ("tmax", offset_of!(FpRay, tmax)),
+                ("dir", offset_of!(FpRay, dir)),
+                ("seed", offset_of!(FpRay, seed)),
+            ],
+        );
+        check(
+            "FpJob",
+            size_of::<FpJob>(),
+            &[
+                ("count", offset_of!(FpJob, count)),
+                ("per_ray", offset_of!(FpJob, per_ray)),
+                ("grid", offset_of!(FpJob, grid)),
+            ],
+        );
+        check("Params", size_of::<Params>(), &[]);
+        assert_eq!(size_of::<Node>(), 48);
+        // The library alone is what other kernels append.
+        assert!(SHADER.contains(FREEPATH_WGSL));
+    }
+}
