@@ -27,7 +27,7 @@ struct Segment {
     beta: vec3<f32>,
     tr_first: u32,
     tr_count: u32,
-    _pad0: u32,
+    seed: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -70,6 +70,8 @@ struct BeamQuad {
 @group(0) @binding(10) var primary_sums: texture_2d<f32>;
 @group(0) @binding(11) var<storage, read> primaries: array<Segment>;
 @group(0) @binding(12) var<storage, read> quads: array<BeamQuad>;
+@group(0) @binding(13) var<storage, read> octree_nodes: array<Node>;
+@group(0) @binding(14) var<uniform> octrees: Octrees;
 
 // The grid transmittance estimate at t: the value after the last step before t.
 fn grid_tr(seg: Segment, t: f32) -> f32 {
@@ -91,14 +93,21 @@ fn grid_tr(seg: Segment, t: f32) -> f32 {
 }
 
 // The camera-transmittance factor, as `estimate::eq2::camera_tr`: the boxes' exact
-// exp(-tau) from the segment origin to t times the grid estimate.
+// exp(-tau) from the segment origin to t times the grid estimate, the CPU's as steps or
+// ratio tracking here (the segment's realization, the same for every t).
 fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
     var tau = 0.0;
     for (var i = 0u; i < params.box_count; i++) {
         let b = params.boxes[i];
         tau += box_overlap(seg.origin, inv, b.min, b.max, 0.0, t) * b.sigma_t;
     }
-    return exp(-tau) * grid_tr(seg, t);
+    var grid = 1.0;
+    if params.track_tr != 0u {
+        grid = ratio_tr_to(seg.origin, seg.dir, t, fp_key(seg.seed, params.pass_seed));
+    } else {
+        grid = grid_tr(seg, t);
+    }
+    return exp(-tau) * grid;
 }
 
 // The piece's eq. 2 term in xyz, and 1 in w when the pair counts: `estimate::eq2::term`,

@@ -45,6 +45,12 @@ struct Params {
     grid_count: u32,
     // The image width when primary segments are rasterised, 0 when they are gathered.
     raster_width: u32,
+    // This pass's key for camera transmittance tracked on the GPU, and whether it is
+    // (else the kernels read the CPU's estimate as steps).
+    pass_seed: u32,
+    track_tr: u32,
+    _pad0: u32,
+    _pad1: u32,
     boxes: array<MediumBox, MAX_BOXES>,
     grids: array<GridMeta, MAX_GRIDS>,
 }

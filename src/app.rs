@@ -23,7 +23,7 @@ pub use isolate::{probe_in_child, usd_probe};
 pub use render::{render, RenderArgs};
 pub use watch::{watch, WatchArgs};
 
-use ppb::gpu::beams::PrimaryPath;
+use ppb::gpu::beams::{CameraTr, PrimaryPath};
 use ppb::gpu::{DeviceKind, Gpu};
 use ppb::majorant::cache;
 use ppb::media::Media;
@@ -163,6 +163,12 @@ pub struct Machine {
     /// Both give the CPU's image; `ppb bench-gpu` times both.
     #[arg(long, value_enum, default_value = "auto")]
     pub gpu_primary: PrimaryPath,
+    /// The GPU's camera transmittance: steps (the CPU's estimate of each segment, per
+    /// --tr, uploaded every pass; the image equals the CPU's) or track (ratio tracking on
+    /// the GPU over the same octrees, whatever --tr says; no per-pass upload, and another
+    /// draw of the same estimate).
+    #[arg(long, value_enum, default_value = "steps")]
+    pub gpu_tr: CameraTr,
 }
 
 /// An error met while rendering (a device lost, an output that cannot be written), not

@@ -11,7 +11,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::{cpu::CpuBeams, Estimator};
 use crate::film::Film;
-use crate::gpu::beams::{GpuBeams, GpuStats, PrimaryPath};
+use crate::gpu::beams::{CameraTr, GpuBeams, GpuOptions, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
 use crate::output::Image;
 use crate::pass::{Timings, Tracer};
@@ -65,11 +65,19 @@ impl Session {
         }
     }
 
-    /// A session with the beam estimate on `gpu` (its primary segments estimated as
-    /// `primary` says), or on the CPU without one.
-    pub fn open(tracer: Tracer, gpu: Option<Gpu>, primary: PrimaryPath) -> Result<Self> {
+    /// A session with the beam estimate on `gpu` (primary segments and camera
+    /// transmittance as `primary` and `camera_tr` say), or on the CPU without one.
+    pub fn open(
+        tracer: Tracer,
+        gpu: Option<Gpu>,
+        primary: PrimaryPath,
+        camera_tr: CameraTr,
+    ) -> Result<Self> {
         let estimator: Box<dyn Estimator> = match gpu {
-            Some(g) => Box::new(GpuBeams::new(g, tracer.media(), tracer.camera(), primary)?),
+            Some(g) => {
+                let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
+                Box::new(GpuBeams::new(g, tracer.media(), tracer.camera(), opts)?)
+            }
             None => Box::new(CpuBeams),
         };
         Ok(Session::new(tracer, estimator))

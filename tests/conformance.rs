@@ -12,7 +12,7 @@ use common::gpu_or_skip;
 use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
-use ppb::gpu::beams::PrimaryPath;
+use ppb::gpu::beams::{CameraTr, PrimaryPath};
 use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
@@ -65,10 +65,14 @@ impl Case<'_> {
     fn render(&self, seed: u64) -> Option<Image> {
         let gpu = match self.device {
             Device::Cpu => None,
-            Device::Gpu => Some(gpu_or_skip(self.scene)?),
+            Device::Gpu(_) => Some(gpu_or_skip(self.scene)?),
+        };
+        let camera_tr = match self.device {
+            Device::Gpu(tr) => tr,
+            Device::Cpu => CameraTr::Steps,
         };
         let r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
-        let mut session = Session::open(r, gpu, PrimaryPath::Auto).expect("estimator");
+        let mut session = Session::open(r, gpu, PrimaryPath::Auto, camera_tr).expect("estimator");
         Some(session.render(self.passes).expect("render"))
     }
 }
@@ -137,7 +141,8 @@ impl Outcome {
 #[derive(Clone, Copy, PartialEq)]
 enum Device {
     Cpu,
-    Gpu,
+    /// The GPU, with the camera transmittance it is given or tracks itself.
+    Gpu(CameraTr),
 }
 
 /// Both methods against the reference, and against each other: the hybrid's and the pure
@@ -184,10 +189,10 @@ fn check_on(case: &Case, reference: &str, mask: Option<&str>) -> Option<Outcome>
     eprintln!(
         "{} ({}, {:?}): rel_l1 {:.4}, noise-only {:.4}, mean {:.5} vs {:.5}",
         case.scene,
-        if case.device == Device::Gpu {
-            "GPU"
-        } else {
-            "CPU"
+        match case.device {
+            Device::Cpu => "CPU",
+            Device::Gpu(CameraTr::Steps) => "GPU",
+            Device::Gpu(CameraTr::Track) => "GPU, transmittance tracked there",
         },
         case.method,
         m.rel_l1,
@@ -327,16 +332,25 @@ fn free_path_samplers_agree_within_noise() {
 }
 
 /// The beam estimate on the GPU (lavapipe in CI) meets the same bounds as on the CPU, on a
-/// homogeneous, a heterogeneous and a glass scene. Fewer passes than the CPU tests (lavapipe
+/// homogeneous, a heterogeneous and a glass scene, and on the heterogeneous one with the
+/// camera transmittance tracked on the GPU (`--gpu-tr track`). Fewer passes than the CPU tests (lavapipe
 /// runs the estimate on the CPU cores); the bound follows the measured noise.
 #[test]
 fn conformance_on_gpu() {
+    let steps = CameraTr::Steps;
     let cases = [
-        ("fog-box", None, 0.0011, 0.01),
-        ("smoke-grid", None, 0.001, 0.01),
-        ("glass-caustic", Some("emitter_mask.png"), 0.018, 0.02),
+        ("fog-box", None, 0.0011, 0.01, steps),
+        ("smoke-grid", None, 0.001, 0.01, steps),
+        ("smoke-grid", None, 0.001, 0.01, CameraTr::Track),
+        (
+            "glass-caustic",
+            Some("emitter_mask.png"),
+            0.018,
+            0.02,
+            steps,
+        ),
     ];
-    for (name, mask, ref_noise, mean_tol) in cases {
+    for (name, mask, ref_noise, mean_tol, camera_tr) in cases {
         let scene = format!("scenes/conformance/{name}/scene.toml");
         let reference = format!("tests/data/conformance/{name}/reference.exr");
         let mask = mask.map(|m| format!("tests/data/conformance/{name}/{m}"));
@@ -345,7 +359,7 @@ fn conformance_on_gpu() {
             passes: 48,
             paths: 20_000,
             method: Method::Hybrid,
-            device: Device::Gpu,
+            device: Device::Gpu(camera_tr),
         };
         let Some(o) = check_on(&case, &reference, mask.as_deref()) else {
             return;

@@ -13,12 +13,13 @@ use ppb::compare::DeviceDiff;
 use ppb::estimate::beams::{BeamMap, BeamPiece};
 use ppb::estimate::eq2;
 use ppb::geometry::Ray;
-use ppb::gpu::beams::{GpuBeams, PrimaryPath};
+use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::pass::{Timings, TracedPass, Tracer};
 use ppb::scene::toml::load;
 use ppb::scene::Camera;
 use ppb::transport::camera::{CameraPass, Pinhole, Primary};
+use ppb::transport::freepath::Mode;
 use ppb::transport::transmittance::{RatioSteps, SegmentTr, TrMode, MAX_TR_SAMPLES};
 use ppb::transport::{Beam, Counters};
 
@@ -49,7 +50,8 @@ fn parity(
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths, s.tr_mode) = (size, size, beams, tr);
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let mut est = GpuBeams::new(g, r.media(), r.camera(), primary).expect("gpu");
+    let opts = GpuOptions::new(primary, CameraTr::Steps, &r.settings);
+    let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
     assert_eq!(est.primary(), primary);
     let mut out = Parity {
         diff: DeviceDiff::default(),
@@ -181,7 +183,13 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
         1,
         1,
     );
-    let mut est = GpuBeams::new(g, &media, &camera, PrimaryPath::Gather).expect("gpu");
+    let opts = GpuOptions {
+        primary: PrimaryPath::Gather,
+        camera_tr: CameraTr::Steps,
+        seed: 0,
+        free_path: Mode::Adaptive,
+    };
+    let mut est = GpuBeams::new(g, &media, &camera, opts).expect("gpu");
     let ray = Ray::new(Vec3::ZERO, Vec3::X);
     let power = Vec3::new(3.0, 5.0, 7.0);
     // A beam along +z crossing the camera ray at t = tx, s = s_at, distance |dy| (exact).

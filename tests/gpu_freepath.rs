@@ -362,3 +362,103 @@ fn walk_visits_the_cpu_leaves() {
     );
     walks_match(&cloud, &[(ray, tmax), (side, 20.0)], "cloud-hg walk");
 }
+
+/// The beam estimate with camera transmittance tracked on the GPU (`CameraTr::Track`): one
+/// beam crosses 4096 copies of a camera segment through the ramp (each its own
+/// realization, over 4 passes), at t = 0.6, 1.4 and 2.2. Each pixel's value divided by the
+/// pair's term at transmittance 1 is that realization's transmittance at the crossing; its
+/// mean must match quadrature within 5 measured standard errors.
+#[test]
+fn beam_estimate_tracks_camera_transmittance() {
+    use ppb::estimate::beams::{BeamMap, BeamPiece};
+    use ppb::estimate::eq2;
+    use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
+    use ppb::pass::{Timings, TracedPass};
+    use ppb::scene::Camera;
+    use ppb::transport::camera::{CameraPass, Pinhole, Primary};
+    use ppb::transport::transmittance::SegmentTr;
+    use ppb::transport::Beam;
+    const R: f32 = 0.05;
+    const SIDE: u32 = 64;
+    let Some(g) = gpu_or_skip("beam_estimate_tracks_camera_transmittance") else {
+        return;
+    };
+    let media = ramp_media();
+    let (ray, tmax) = ramp_ray();
+    let camera = Pinhole::new(
+        &Camera {
+            origin: ray.o,
+            target: ray.o + ray.d,
+            up: Vec3::Z,
+            vfov_deg: 30.0,
+        },
+        SIDE,
+        SIDE,
+    );
+    let opts = GpuOptions {
+        primary: PrimaryPath::Gather,
+        camera_tr: CameraTr::Track,
+        seed: 7,
+        free_path: Mode::Adaptive,
+    };
+    let mut est = GpuBeams::new(g, &media, &camera, opts).expect("gpu");
+    let pixels = (SIDE * SIDE) as usize;
+    for tc in [0.6f32, 1.4, 2.2] {
+        // Across the segment at distance 0.01, the crossing half way along the beam.
+        let at = ray.at(tc) + Vec3::new(0.0, 0.01, 0.0);
+        let beam = Beam::new(at - Vec3::Z * 0.4, Vec3::Z, 0.8, Vec3::ONE);
+        let scatter = |x, cos| media.in_scatter(x, cos);
+        let piece = BeamPiece::whole(&beam, 0);
+        let base = eq2::term(&ray, (0.0, tmax), &piece, R, scatter, |_| 1.0)
+            .expect("the pair counts")
+            .x as f64;
+        let mut samples = Vec::with_capacity(4 * pixels);
+        for index in 1..=4 {
+            let pass = TracedPass {
+                index,
+                camera: CameraPass {
+                    image: vec![Vec3::ZERO; pixels],
+                    primaries: vec![
+                        Primary {
+                            dir: ray.d,
+                            t_surf: tmax,
+                            tr: SegmentTr::Clear,
+                        };
+                        pixels
+                    ],
+                    secondary: Vec::new(),
+                    counters: Counters::default(),
+                },
+                beam_map: Some(BeamMap::build(&[beam], R)),
+                beams: vec![beam],
+                beam_radius: R,
+                counters: Counters::default(),
+                timings: Timings::default(),
+            };
+            est.clear().expect("clear");
+            est.submit(&pass, &media).expect("submit");
+            let img = est.read().expect("read back").0;
+            assert!(
+                img.iter().all(|p| p[3] == 1.0),
+                "t={tc}: one evaluation per pixel"
+            );
+            samples.extend(img.iter().map(|p| p[0] as f64 / base));
+        }
+        let n = samples.len() as f64;
+        let mean = samples.iter().sum::<f64>() / n;
+        let var = samples.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        let se = (var / n).sqrt();
+        let truth = quad_tr(&media, &ray, tc);
+        eprintln!(
+            "t={tc}: mean transmittance {mean:.5} vs quadrature {truth:.5} ({:.2} standard \
+             errors, sd {:.3})",
+            (mean - truth) / se,
+            var.sqrt()
+        );
+        assert!(var > 1e-4, "t={tc}: every realization gave the same value");
+        assert!(
+            (mean - truth).abs() < 5.0 * se + 1e-4,
+            "t={tc}: {mean} vs {truth} (se {se})"
+        );
+    }
+}

@@ -12,7 +12,7 @@ use ppb::compare::{block_mean, compare as metrics, DeviceDiff};
 use ppb::error::Result as PpbResult;
 use ppb::estimate::Estimator;
 use ppb::film::Film;
-use ppb::gpu::beams::{GpuBeams, PrimaryPath};
+use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
 use ppb::gpu::DeviceKind;
 use ppb::media::Media;
 use ppb::output::{self, Image};
@@ -531,7 +531,10 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
         }
         let gpus = paths
             .iter()
-            .map(|&p| GpuBeams::new(gpu.clone(), tracer.media(), tracer.camera(), p))
+            .map(|&p| {
+                let opts = GpuOptions::new(p, CameraTr::Steps, &tracer.settings);
+                GpuBeams::new(gpu.clone(), tracer.media(), tracer.camera(), opts)
+            })
             .collect::<PpbResult<Vec<_>>>()?;
         let out = Arc::new(Mutex::new(
             paths.iter().map(|_| DeviceRace::default()).collect(),

@@ -403,7 +403,7 @@ fn render_job(
         Some(h) => h.scene_hash.clone(),
         None => content_hash(&file.sources)?,
     };
-    let mut session = Session::open(tracer, gpu, args.machine.gpu_primary)?;
+    let mut session = Session::open(tracer, gpu, args.machine.gpu_primary, args.machine.gpu_tr)?;
     let (from, earlier_seconds) = match resumed {
         Some(p) => {
             if !quiet {

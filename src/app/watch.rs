@@ -463,7 +463,13 @@ impl Worker {
             Ramp::Doubling
         };
         Ok((
-            Session::open(tracer, self.gpu.clone(), self.args.machine.gpu_primary)?.with_ramp(ramp),
+            Session::open(
+                tracer,
+                self.gpu.clone(),
+                self.args.machine.gpu_primary,
+                self.args.machine.gpu_tr,
+            )?
+            .with_ramp(ramp),
             reused,
         ))
     }

@@ -20,6 +20,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
+use super::freepath::{mode_word, octree_upload, storage_init};
 use super::layout::{media_params, BeamQuad, Chunk, Params, SegmentUpload};
 use super::Gpu;
 use crate::error::{Error, Result};
@@ -28,12 +29,16 @@ use crate::estimate::Estimator;
 use crate::film::Film;
 use crate::media::Media;
 use crate::pass::{TracedPass, Tracer};
+use crate::sampling::mix64;
+use crate::settings::RenderSettings;
 use crate::transport::camera::Pinhole;
+use crate::transport::freepath::Mode;
 use rayon::prelude::*;
 
 /// The kernel's source: its own file and the shared media code.
 pub const SHADER: &str = concat!(
     include_str!("../../shaders/beam_estimate.wgsl"),
+    include_str!("../../shaders/freepath.wgsl"),
     include_str!("../../shaders/media.wgsl")
 );
 
@@ -84,6 +89,41 @@ impl PrimaryPath {
     }
 }
 
+/// Where the GPU's camera transmittance comes from (`--gpu-tr`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraTr {
+    /// The CPU's estimate of each segment (`--tr`), uploaded as steps every pass: the
+    /// GPU's image equals the CPU's.
+    Steps,
+    /// Ratio tracking on the GPU along each segment (`shaders/freepath.wgsl`), whatever
+    /// `--tr` says: no steps are uploaded, and the image is another draw of the same
+    /// estimate.
+    Track,
+}
+
+/// How a [`GpuBeams`] estimates: primary segments, camera transmittance, and the render's
+/// seed and free-path sampler (for tracking on the GPU).
+#[derive(Clone, Copy, Debug)]
+pub struct GpuOptions {
+    pub primary: PrimaryPath,
+    pub camera_tr: CameraTr,
+    pub seed: u64,
+    pub free_path: Mode,
+}
+
+impl GpuOptions {
+    /// The options for a render with `settings`.
+    pub fn new(primary: PrimaryPath, camera_tr: CameraTr, settings: &RenderSettings) -> Self {
+        GpuOptions {
+            primary,
+            camera_tr,
+            seed: settings.seed,
+            free_path: settings.free_path,
+        }
+    }
+}
+
 /// When the GPU ran one pass's estimate, and how long the CPU waited for it.
 #[derive(Clone, Copy, Debug)]
 pub struct GpuTiming {
@@ -99,6 +139,8 @@ pub struct GpuStats {
     pub adapter: String,
     /// How primary segments were estimated.
     pub primary: Option<PrimaryPath>,
+    /// Where the camera transmittance came from.
+    pub camera_tr: Option<CameraTr>,
     pub passes: u32,
     /// Sum over passes of submission to completion of the estimate.
     pub estimate_seconds: f64,
@@ -210,6 +252,9 @@ pub struct GpuBeams {
     chunk_buf: wgpu::Buffer,
     chunk_stride: u64,
     grid_buf: wgpu::Buffer,
+    octree_nodes: wgpu::Buffer,
+    octrees: wgpu::Buffer,
+    seed: u64,
     accum: wgpu::Buffer,
     segments: Grow,
     pixel_first: Grow,
@@ -223,12 +268,12 @@ pub struct GpuBeams {
 }
 
 impl GpuBeams {
-    /// Compiles the kernels and uploads the media (fixed for a render) for images of
-    /// `camera`, primary segments estimated as `primary` says.
-    pub fn new(gpu: Gpu, media: &Media, camera: &Pinhole, primary: PrimaryPath) -> Result<Self> {
+    /// Compiles the kernels and uploads the media and their octrees (fixed for a render)
+    /// for images of `camera`, estimating as `opts` says.
+    pub fn new(gpu: Gpu, media: &Media, camera: &Pinhole, opts: GpuOptions) -> Result<Self> {
         let (width, height) = (camera.width(), camera.height());
         let pixels = width * height;
-        let primary = primary.resolve(&gpu, width, height)?;
+        let primary = opts.primary.resolve(&gpu, width, height)?;
         let dev = &gpu.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -274,23 +319,16 @@ impl GpuBeams {
         if raster.is_some() {
             params.raster_width = width;
         }
-        let grid_bytes: &[u8] = if grid_words.is_empty() {
-            &[0; 16]
-        } else {
-            bytemuck::cast_slice(&grid_words)
-        };
-        if grid_bytes.len() as u64 > gpu.limits.max_storage_buffer_binding_size {
-            return Err(Error::Gpu(format!(
-                "the density grids need {} bytes, over the adapter's storage binding limit \
-                 of {} (use --device cpu)",
-                grid_bytes.len(),
-                gpu.limits.max_storage_buffer_binding_size
-            )));
-        }
-        let grid_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("grid data"),
-            contents: grid_bytes,
-            usage: wgpu::BufferUsages::STORAGE,
+        params.track_tr = u32::from(opts.camera_tr == CameraTr::Track);
+        let grid_buf = storage_init(&gpu, "the density grids", bytemuck::cast_slice(&grid_words))?;
+        let (mut octree_block, nodes) = octree_upload(media)?;
+        octree_block.mode = mode_word(opts.free_path);
+        let octree_nodes =
+            storage_init(&gpu, "the majorant octrees", bytemuck::cast_slice(&nodes))?;
+        let octrees = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("octrees"),
+            contents: bytemuck::bytes_of(&octree_block),
+            usage: wgpu::BufferUsages::UNIFORM,
         });
         let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
@@ -329,12 +367,16 @@ impl GpuBeams {
             chunk_buf,
             chunk_stride,
             grid_buf,
+            octree_nodes,
+            octrees,
+            seed: opts.seed,
             accum,
             pixels,
             in_flight: None,
             stats: GpuStats {
                 adapter,
                 primary: Some(primary),
+                camera_tr: Some(opts.camera_tr),
                 ..Default::default()
             },
         })
@@ -366,11 +408,13 @@ impl GpuBeams {
             None => (Vec::new(), &[][..]),
         };
         let origin = self.camera.origin();
-        let segs = SegmentUpload::build(origin, &t.camera, media, self.raster.is_some());
+        let steps = self.params.track_tr == 0;
+        let segs = SegmentUpload::build(origin, &t.camera, media, self.raster.is_some(), steps);
         if segs.pixel_first.len() != self.pixels as usize + 1 {
             return Err(Error::Gpu("pass size differs from the estimator's".into()));
         }
         self.params.radius = t.beam_radius;
+        self.params.pass_seed = mix64(self.seed ^ mix64(u64::from(t.index))) as u32;
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
@@ -472,6 +516,8 @@ impl GpuBeams {
                 (7, self.grid_buf.as_entire_binding()),
                 (11, r.primaries.buf.as_entire_binding()),
                 (12, r.quads.buf.as_entire_binding()),
+                (13, self.octree_nodes.as_entire_binding()),
+                (14, self.octrees.as_entire_binding()),
             ],
         );
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -601,6 +647,7 @@ impl GpuBeams {
             .into_iter()
             .enumerate()
             .map(|(i, r)| (i as u32, r))
+            .chain([(13, whole(&self.octree_nodes)), (14, whole(&self.octrees))])
             .collect();
         bind_group(&self.gpu.device, &self.layout, &entries)
     }
@@ -696,6 +743,8 @@ fn quad_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         (7, read, frag),
         (11, read, frag),
         (12, read, frag | wgpu::ShaderStages::VERTEX),
+        (13, read, frag),
+        (14, wgpu::BufferBindingType::Uniform, frag),
     ]
     .map(|(binding, ty, visibility)| wgpu::BindGroupLayoutEntry {
         binding,
@@ -779,8 +828,8 @@ fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
     })
 }
 
-/// Bindings 0-10 of `beam_estimate.wgsl` for the kernels; the chunk uniform (1) takes a
-/// dynamic offset.
+/// Bindings 0-10, 13 and 14 of `beam_estimate.wgsl` for the kernels; the chunk uniform
+/// (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
         |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
@@ -824,7 +873,14 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         },
         count: None,
     };
-    let entries: Vec<_> = entries.into_iter().chain([sums]).collect();
+    let entries: Vec<_> = entries
+        .into_iter()
+        .chain([
+            sums,
+            entry(13, read, false),
+            entry(14, wgpu::BufferBindingType::Uniform, false),
+        ])
+        .collect();
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),
         entries: &entries,

@@ -85,7 +85,7 @@ pub struct GpuSegment {
     pub minorant: f32,
 }
 
-fn mode_word(mode: Mode) -> u32 {
+pub(crate) fn mode_word(mode: Mode) -> u32 {
     match mode {
         Mode::Adaptive => 0,
         Mode::Woodcock => 1,
@@ -412,7 +412,8 @@ fn items(rays: usize, per_ray: u32) -> Result<u32> {
 }
 
 /// A read-only storage buffer holding `data` (16 zero bytes if empty: no binding may be).
-fn storage_init(gpu: &Gpu, label: &str, data: &[u8]) -> Result<wgpu::Buffer> {
+/// A storage buffer holding `data` (16 zero bytes when empty: a binding may not be).
+pub(crate) fn storage_init(gpu: &Gpu, label: &str, data: &[u8]) -> Result<wgpu::Buffer> {
     if data.len() as u64 > gpu.limits.max_storage_buffer_binding_size {
         return Err(Error::Gpu(format!(
             "{label} needs {} bytes, over the adapter's storage binding limit of {}",

@@ -59,6 +59,11 @@ pub struct Params {
     pub grid_count: u32,
     /// The image width when primary segments are rasterised, 0 when they are gathered.
     pub raster_width: u32,
+    /// This pass's key for camera transmittance tracked on the GPU ...
+    pub pass_seed: u32,
+    /// ... and whether it is (1), else the kernels read the CPU's estimate as steps (0).
+    pub track_tr: u32,
+    pub _pad: [u32; 2],
     pub boxes: [MediumBox; MAX_BOXES],
     pub grids: [GridMeta; MAX_GRIDS],
 }
@@ -74,7 +79,8 @@ pub struct Chunk {
 }
 
 /// A camera segment [t0, t1) of a ray with path weight beta; its grid transmittance is
-/// the step function `tr_steps[tr_first .. tr_first + tr_count]`.
+/// the step function `tr_steps[tr_first .. tr_first + tr_count]`, or, tracked on the GPU,
+/// the realization keyed by `seed` (unique in its pass) and the pass.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Segment {
@@ -85,7 +91,8 @@ pub struct Segment {
     pub beta: [f32; 3],
     pub tr_first: u32,
     pub tr_count: u32,
-    pub _pad: [u32; 3],
+    pub seed: u32,
+    pub _pad: [u32; 2],
 }
 
 /// The media part of [`Params`] and the `grid_data` words (leaf tables, leaf values and
@@ -104,6 +111,9 @@ pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
         box_count: media.media.len() as u32,
         grid_count: media.grids.len() as u32,
         raster_width: 0,
+        pass_seed: 0,
+        track_tr: 0,
+        _pad: [0; 2],
         boxes: [MediumBox::default(); MAX_BOXES],
         grids: [GridMeta::default(); MAX_GRIDS],
     };
@@ -201,7 +211,8 @@ impl BeamQuad {
 /// One pass's camera segments as the kernels read them: segments in pixel order with
 /// per-pixel ranges into them (`pixels + 1` entries), and the transmittance steps. When
 /// primary segments are rasterised they are kept apart, one per pixel (an empty one where
-/// the ray misses the media), and `segments` holds the later ones only.
+/// the ray misses the media), and `segments` holds the later ones only. Without `steps`
+/// (the GPU tracks transmittance itself) no steps are uploaded.
 #[derive(Default)]
 pub struct SegmentUpload {
     pub segments: Vec<Segment>,
@@ -211,7 +222,13 @@ pub struct SegmentUpload {
 }
 
 impl SegmentUpload {
-    pub fn build(origin: Vec3, pass: &CameraPass, media: &Media, raster: bool) -> SegmentUpload {
+    pub fn build(
+        origin: Vec3,
+        pass: &CameraPass,
+        media: &Media,
+        raster: bool,
+        steps: bool,
+    ) -> SegmentUpload {
         let pixels = pass.primaries.len();
         let mut out = SegmentUpload {
             segments: Vec::with_capacity(if raster { 0 } else { pixels }),
@@ -226,18 +243,23 @@ impl SegmentUpload {
             return out;
         };
         let mut next = pass.secondary.iter().peekable();
+        // Seeds: a primary's is its pixel, a later segment's the pixel count plus its rank.
+        let mut seed = pixels as u32;
+        let tr = |t| steps.then_some(t);
         for (pixel, p) in pass.primaries.iter().enumerate() {
             out.pixel_first.push(out.segments.len() as u32);
-            let primary = out.segment(&bounds, Ray::new(origin, p.dir), p.t_surf, Vec3::ONE, &p.tr);
+            let ray = Ray::new(origin, p.dir);
+            let primary = out.segment(&bounds, ray, p.t_surf, Vec3::ONE, tr(&p.tr), pixel as u32);
             match (raster, primary) {
                 (true, s) => out.primaries.push(s.unwrap_or_default()),
                 (false, Some(s)) => out.segments.push(s),
                 (false, None) => {}
             }
             while let Some(s) = next.next_if(|s| s.pixel as usize == pixel) {
-                if let Some(seg) = out.segment(&bounds, s.ray, s.t_surf, s.beta, &s.tr) {
+                if let Some(seg) = out.segment(&bounds, s.ray, s.t_surf, s.beta, tr(&s.tr), seed) {
                     out.segments.push(seg);
                 }
+                seed += 1;
             }
         }
         out.pixel_first.push(out.segments.len() as u32);
@@ -247,19 +269,22 @@ impl SegmentUpload {
     /// The segment [0, t_surf) of `ray`, ended where it leaves the media's bounds
     /// (beyond, sigma_s and so every term is 0; an infinite end also upsets some shader
     /// compilers: lavapipe dropped crossings on segments ending at f32::MAX), with its
-    /// transmittance steps appended. None for a segment that misses the bounds: it
-    /// carries no beam radiance.
+    /// transmittance steps (if given) appended. None for a segment that misses the bounds:
+    /// it carries no beam radiance.
     fn segment(
         &mut self,
         b: &[Vec3; 2],
         ray: Ray,
         t_surf: f32,
         beta: Vec3,
-        tr: &SegmentTr,
+        tr: Option<&SegmentTr>,
+        seed: u32,
     ) -> Option<Segment> {
         let (_, t1) = ray_box(&ray, b, 0.0, t_surf)?;
         let tr_first = self.tr_steps.len() as u32;
-        tr.steps(&mut self.tr_steps);
+        if let Some(tr) = tr {
+            tr.steps(&mut self.tr_steps);
+        }
         Some(Segment {
             origin: ray.o.into(),
             t0: 0.0,
@@ -268,7 +293,8 @@ impl SegmentUpload {
             beta: beta.into(),
             tr_first,
             tr_count: self.tr_steps.len() as u32 - tr_first,
-            _pad: [0; 3],
+            seed,
+            _pad: [0; 2],
         })
     }
 }

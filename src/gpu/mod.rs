@@ -178,6 +178,7 @@ mod tests {
                 ("beta", offset_of!(Segment, beta)),
                 ("tr_first", offset_of!(Segment, tr_first)),
                 ("tr_count", offset_of!(Segment, tr_count)),
+                ("seed", offset_of!(Segment, seed)),
             ],
         );
         check(
@@ -232,6 +233,9 @@ mod tests {
                 ("radius", offset_of!(Params, radius)),
                 ("box_count", offset_of!(Params, box_count)),
                 ("grid_count", offset_of!(Params, grid_count)),
+                ("raster_width", offset_of!(Params, raster_width)),
+                ("pass_seed", offset_of!(Params, pass_seed)),
+                ("track_tr", offset_of!(Params, track_tr)),
                 ("boxes", offset_of!(Params, boxes)),
                 ("grids", offset_of!(Params, grids)),
             ],
