@@ -11,8 +11,10 @@
 #   2. PPB_REQUIRE_GPU=1 cargo test --release --test gpu: GPU/CPU parity and the GPU render
 #   3. the paper-scale run: smoke-grid and the dense smoke at 512x512, 100,000 light paths x
 #      128 passes, the paper's method (--method ppb), on the GPU with primary segments
-#      rasterised (--gpu-primary auto) and gathered (--gpu-primary gather), then on the CPU,
-#      with --stats; the GPU images compared with the CPU's (rel_l1)
+#      rasterised (--gpu-primary auto) and gathered (--gpu-primary gather), rasterised with
+#      the camera transmittance tracked on the GPU (--gpu-tr track), then on the CPU, with
+#      --stats; the GPU images compared with the CPU's (rel_l1: float rounding for the
+#      first two, noise for the tracked run, which draws its own transmittance)
 #   4. ppb bench-gpu on the four public conformance scenes at full resolution
 # Then one table: adapter, ms per pass on each device, their ratio, the GPU-vs-CPU
 # difference, the time split of a pipelined GPU pass (estimate, overlap with the next
@@ -69,17 +71,18 @@ step gpu-tests env PPB_REQUIRE_GPU=1 cargo test --release --test gpu
 SCENES=(scenes/conformance/smoke-grid/scene.toml scenes/bench/dense-smoke/scene.toml)
 for scene in "${SCENES[@]}"; do
   name=$(basename "$(dirname "$scene")")
-  for run in gpu gpu-gather cpu; do
+  for run in gpu gpu-gather gpu-track cpu; do
     case $run in
       gpu) device=(--device gpu --gpu-primary auto) ;;
       gpu-gather) device=(--device gpu --gpu-primary gather) ;;
+      gpu-track) device=(--device gpu --gpu-primary auto --gpu-tr track) ;;
       cpu) device=(--device cpu) ;;
     esac
     step "paper-$name-$run" "$PPB" render "$scene" --method ppb "${device[@]}" \
       --size "$SIZE" --light-paths "$PATHS" --passes "$PASSES" --quiet \
       --stats "$OUT/paper-$name-$run.json" -o "$OUT/paper-$name-$run.exr"
   done
-  for run in gpu gpu-gather; do
+  for run in gpu gpu-gather gpu-track; do
     step "compare-$name-$run" "$PPB" compare "$OUT/paper-$name-$run.exr" "$OUT/paper-$name-cpu.exr"
   done
 done
@@ -94,13 +97,13 @@ out, quick, scenes = sys.argv[1], sys.argv[2] == "1", sys.argv[3:]
 ok = True
 adapter = None
 print()
-print(f"{'scene':<12} {'primary':<7} {'size':>8} {'paths':>7} {'passes':>6} {'CPU ms/pass':>12} {'GPU ms/pass':>12} "
+print(f"{'scene':<12} {'primary':<7} {'tr':<6} {'size':>8} {'paths':>7} {'passes':>6} {'CPU ms/pass':>12} {'GPU ms/pass':>12} "
       f"{'CPU/GPU':>8} {'rel_l1 GPU-CPU':>15} {'GPU est s':>10} {'overlap s':>10} {'wait s':>8} "
       f"{'upload s':>9} {'beam evals/s':>13}")
 for scene in scenes:
     name = os.path.basename(os.path.dirname(scene))
     runs = {}
-    for run in ("gpu", "gpu-gather", "cpu"):
+    for run in ("gpu", "gpu-gather", "gpu-track", "cpu"):
         try:
             with open(f"{out}/paper-{name}-{run}.json") as f:
                 runs[run] = json.load(f)
@@ -108,7 +111,7 @@ for scene in scenes:
             runs[run] = None
     c = runs["cpu"]
     ms = lambda r: 1e3 * r["seconds"]["total"] / max(r["passes"], 1)
-    for run in ("gpu", "gpu-gather"):
+    for run in ("gpu", "gpu-gather", "gpu-track"):
         g = runs[run]
         if not g or not c:
             print(f"{name:<12} (missing stats: see {out}/paper-{name}-*.log)")
@@ -125,7 +128,8 @@ for scene in scenes:
         gpu = g.get("gpu") or {}
         est = gpu.get("estimate_seconds", 0.0)
         evals = gpu.get("beam_evaluations", 0) / est if est > 0 else 0.0
-        print(f"{name:<12} {gpu.get('primary') or '?':<7} {g['width']}x{g['height']:<4} "
+        print(f"{name:<12} {gpu.get('primary') or '?':<7} {gpu.get('camera_tr') or '?':<6} "
+              f"{g['width']}x{g['height']:<4} "
               f"{g['light_paths']:>7} {g['passes']:>6} "
               f"{ms(c):>12.1f} {ms(g):>12.1f} {ms(c) / max(ms(g), 1e-9):>8.2f} {rel:>15} "
               f"{est:>10.2f} {gpu.get('overlap_seconds', 0):>10.2f} {gpu.get('wait_seconds', 0):>8.2f} "

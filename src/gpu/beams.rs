@@ -150,6 +150,10 @@ pub struct GpuStats {
     pub wait_seconds: f64,
     /// Building and uploading segments and the beam BVH.
     pub upload_seconds: f64,
+    /// Bytes uploaded for the passes (segments, beams, BVH, quads, transmittance steps)
+    /// and the transmittance steps' share: none when the GPU tracks transmittance.
+    pub upload_bytes: u64,
+    pub tr_step_bytes: u64,
     /// Beam-segment crossings within the radius, counted by the GPU (as of the last
     /// read-back).
     pub beam_evaluations: u64,
@@ -427,6 +431,15 @@ impl GpuBeams {
         self.nodes.write(&self.gpu, bytemuck::cast_slice(&nodes))?;
         self.pieces.write(&self.gpu, bytemuck::cast_slice(pieces))?;
         let quads = self.write_quads(t, &segs)?;
+        let tr_bytes = std::mem::size_of_val(&segs.tr_steps[..]) as u64;
+        self.stats.tr_step_bytes += tr_bytes;
+        self.stats.upload_bytes += tr_bytes
+            + (std::mem::size_of_val(&segs.segments[..])
+                + std::mem::size_of_val(&segs.pixel_first[..])
+                + std::mem::size_of_val(&segs.primaries[..])
+                + std::mem::size_of_val(&nodes[..])
+                + std::mem::size_of_val(pieces)
+                + quads as usize * std::mem::size_of::<BeamQuad>()) as u64;
         let n_segs = segs.segments.len() as u32;
         self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
         let seg_chunks = chunks(n_segs);
