@@ -13,6 +13,9 @@
 //! float32-blendable targets (wgpu's GL backend has none), so the gather stays for those
 //! adapters and for segments after specular bounces.
 //!
+//! The camera transmittance is the CPU's estimate, uploaded as steps, or ratio tracking on
+//! the GPU ([`CameraTr::Track`], `shaders/freepath.wgsl`) over the octrees uploaded once.
+//!
 //! Pipelining: [`GpuBeams::submit`] uploads a pass and returns at once; the caller traces
 //! the next pass on the CPU while the GPU works, and the next `submit` (or a checkpoint)
 //! waits for the previous one and reports how long it waited.
@@ -22,7 +25,7 @@ use wgpu::util::DeviceExt;
 
 use super::freepath::{mode_word, octree_upload, storage_init};
 use super::layout::{media_params, BeamQuad, Chunk, Params, SegmentUpload};
-use super::Gpu;
+use super::{buffer_entry, compute_pipelines, read_back, Gpu, READ, READ_WRITE, UNIFORM};
 use crate::error::{Error, Result};
 use crate::estimate::splat::{reach_per_radius, Line};
 use crate::estimate::Estimator;
@@ -280,27 +283,13 @@ impl GpuBeams {
         let primary = opts.primary.resolve(&gpu, width, height)?;
         let dev = &gpu.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("beam_estimate.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
         let layout = bind_group_layout(dev);
-        let pipeline_layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("beam estimate"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = |entry: &str| {
-            dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
-        let (per_segment, per_pixel) = (pipeline("segment_main"), pipeline("pixel_main"));
+        let entries = ["segment_main", "pixel_main"];
+        let (module, pipelines) =
+            compute_pipelines(dev, "beam_estimate.wgsl", SHADER, &layout, &entries);
+        let [per_segment, per_pixel]: [wgpu::ComputePipeline; 2] = pipelines
+            .try_into()
+            .map_err(|_| Error::Gpu("two pipelines".into()))?;
         let raster = (primary == PrimaryPath::Raster).then(|| {
             let layout = quad_layout(dev);
             Raster {
@@ -581,36 +570,11 @@ impl GpuBeams {
     pub fn read(&mut self) -> Result<(Vec<[f32; 4]>, Option<GpuTiming>)> {
         let timing = self.wait()?;
         let size = self.pixels as u64 * 16;
-        let staging = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = self
+        let enc = self
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(&self.accum, 0, &staging, 0, size);
-        self.gpu.queue.submit([enc.finish()]);
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the readback: {e}")))?;
-        rx.recv()
-            .map_err(|_| Error::Gpu("readback never completed".into()))?
-            .map_err(|e| Error::Gpu(format!("mapping the accumulator: {e}")))?;
-        let view = slice
-            .get_mapped_range()
-            .map_err(|e| Error::Gpu(format!("reading the accumulator: {e}")))?;
-        let data = bytemuck::cast_slice::<u8, [f32; 4]>(&view).to_vec();
-        drop(view);
-        staging.unmap();
+        let data = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
         self.check()?;
         Ok((data, timing))
     }
@@ -748,27 +712,16 @@ fn sums_texture(dev: &wgpu::Device, width: u32, height: u32, render: bool) -> wg
 
 /// Bindings of `quad_vs` and `quad_fs`.
 fn quad_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
-    let read = wgpu::BufferBindingType::Storage { read_only: true };
     let frag = wgpu::ShaderStages::FRAGMENT;
     let entries = [
-        (0, wgpu::BufferBindingType::Uniform, frag),
-        (4, read, frag),
-        (7, read, frag),
-        (11, read, frag),
-        (12, read, frag | wgpu::ShaderStages::VERTEX),
-        (13, read, frag),
-        (14, wgpu::BufferBindingType::Uniform, frag),
-    ]
-    .map(|(binding, ty, visibility)| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility,
-        ty: wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    });
+        buffer_entry(0, frag, UNIFORM, false),
+        buffer_entry(4, frag, READ, false),
+        buffer_entry(7, frag, READ, false),
+        buffer_entry(11, frag, READ, false),
+        buffer_entry(12, frag | wgpu::ShaderStages::VERTEX, READ, false),
+        buffer_entry(13, frag, READ, false),
+        buffer_entry(14, frag, UNIFORM, false),
+    ];
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam quads"),
         entries: &entries,
@@ -845,36 +798,20 @@ fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
 /// (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
-        |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: dynamic,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-    let read = wgpu::BufferBindingType::Storage { read_only: true };
+        |binding, ty, dynamic| buffer_entry(binding, wgpu::ShaderStages::COMPUTE, ty, dynamic);
     let entries = [
-        entry(0, wgpu::BufferBindingType::Uniform, false),
-        entry(1, wgpu::BufferBindingType::Uniform, true),
-        entry(2, read, false),
-        entry(3, read, false),
-        entry(4, read, false),
-        entry(5, read, false),
-        entry(6, read, false),
-        entry(7, read, false),
-        entry(
-            8,
-            wgpu::BufferBindingType::Storage { read_only: false },
-            false,
-        ),
-        entry(
-            9,
-            wgpu::BufferBindingType::Storage { read_only: false },
-            false,
-        ),
+        entry(0, UNIFORM, false),
+        entry(1, UNIFORM, true),
+        entry(2, READ, false),
+        entry(3, READ, false),
+        entry(4, READ, false),
+        entry(5, READ, false),
+        entry(6, READ, false),
+        entry(7, READ, false),
+        entry(8, READ_WRITE, false),
+        entry(9, READ_WRITE, false),
+        entry(13, READ, false),
+        entry(14, UNIFORM, false),
     ];
     let sums = wgpu::BindGroupLayoutEntry {
         binding: 10,
@@ -886,14 +823,7 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         },
         count: None,
     };
-    let entries: Vec<_> = entries
-        .into_iter()
-        .chain([
-            sums,
-            entry(13, read, false),
-            entry(14, wgpu::BufferBindingType::Uniform, false),
-        ])
-        .collect();
+    let entries: Vec<_> = entries.into_iter().chain([sums]).collect();
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),
         entries: &entries,

@@ -9,7 +9,7 @@ use wgpu::util::DeviceExt;
 
 use super::beams::CHUNK;
 use super::layout::{media_params, MAX_GRIDS};
-use super::Gpu;
+use super::{buffer_entry, compute_pipelines, read_back, Gpu, READ, READ_WRITE, UNIFORM};
 use crate::error::{Error, Result};
 use crate::majorant::Node;
 use crate::media::Media;
@@ -136,31 +136,13 @@ impl GpuFreePaths {
     pub fn new(gpu: Gpu, media: &Media) -> Result<Self> {
         let dev = &gpu.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("freepath_test.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
         let layout = bind_group_layout(dev);
-        let pipeline_layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("free paths"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = |entry: &str| {
-            dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
-        let (free_path, ratio, walk) = (
-            pipeline("free_path_main"),
-            pipeline("ratio_main"),
-            pipeline("walk_main"),
-        );
+        let entries = ["free_path_main", "ratio_main", "walk_main"];
+        let (_, pipelines) =
+            compute_pipelines(dev, "freepath_test.wgsl", SHADER, &layout, &entries);
+        let [free_path, ratio, walk]: [wgpu::ComputePipeline; 3] = pipelines
+            .try_into()
+            .map_err(|_| Error::Gpu("three pipelines".into()))?;
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("freepath_test.wgsl: {e}")));
         }
@@ -356,12 +338,6 @@ impl GpuFreePaths {
             Kernel::Ratio => &self.ratio,
             Kernel::Walk => &self.walk,
         };
-        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("free-path readback"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         for (k, j) in jobs.iter().enumerate() {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
@@ -369,24 +345,7 @@ impl GpuFreePaths {
             pass.set_bind_group(0, &bind, &[(k as u64 * self.job_stride) as u32]);
             pass.dispatch_workgroups(j.count.div_ceil(WORKGROUP), 1, 1);
         }
-        enc.copy_buffer_to_buffer(&out_buf, 0, &staging, 0, size);
-        self.gpu.queue.submit([enc.finish()]);
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        dev.poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the free paths: {e}")))?;
-        rx.recv()
-            .map_err(|_| Error::Gpu("free-path readback never completed".into()))?
-            .map_err(|e| Error::Gpu(format!("mapping the free paths: {e}")))?;
-        let view = slice
-            .get_mapped_range()
-            .map_err(|e| Error::Gpu(format!("reading the free paths: {e}")))?;
-        let data = bytemuck::cast_slice::<u8, [u32; 4]>(&view).to_vec();
-        drop(view);
-        staging.unmap();
+        let data = read_back(&self.gpu, enc, &out_buf, size, "the free paths")?;
         self.check()?;
         Ok(data)
     }
@@ -434,31 +393,16 @@ pub(crate) fn storage_init(gpu: &Gpu, label: &str, data: &[u8]) -> Result<wgpu::
 /// Bindings 0-7 of `freepath_test.wgsl`; the job uniform (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
-        |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: dynamic,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-    let read = wgpu::BufferBindingType::Storage { read_only: true };
-    let uniform = wgpu::BufferBindingType::Uniform;
+        |binding, ty, dynamic| buffer_entry(binding, wgpu::ShaderStages::COMPUTE, ty, dynamic);
     let entries = [
-        entry(0, uniform, false),
-        entry(1, uniform, true),
-        entry(2, read, false),
-        entry(3, read, false),
-        entry(4, uniform, false),
-        entry(5, read, false),
-        entry(6, read, false),
-        entry(
-            7,
-            wgpu::BufferBindingType::Storage { read_only: false },
-            false,
-        ),
+        entry(0, UNIFORM, false),
+        entry(1, UNIFORM, true),
+        entry(2, READ, false),
+        entry(3, READ, false),
+        entry(4, UNIFORM, false),
+        entry(5, READ, false),
+        entry(6, READ, false),
+        entry(7, READ_WRITE, false),
     ];
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("free paths"),
@@ -470,40 +414,14 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
 mod tests {
     use super::*;
     use crate::gpu::layout::Params;
+    use crate::gpu::validated;
     use std::mem::{offset_of, size_of};
 
     /// The free-path shader (test kernels + freepath.wgsl + media.wgsl) parses and
     /// validates, and its shared structs have the Rust `Pod` types' sizes and offsets.
     #[test]
     fn freepath_shader_validates_and_layouts_match() {
-        let module = naga::front::wgsl::parse_str(SHADER)
-            .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::empty(),
-        )
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
-        let check = |name: &str, size: usize, fields: &[(&str, usize)]| {
-            let ty = module
-                .types
-                .iter()
-                .find(|(_, t)| t.name.as_deref() == Some(name))
-                .unwrap_or_else(|| panic!("struct {name} missing from the shader"))
-                .1;
-            let naga::TypeInner::Struct { members, span } = &ty.inner else {
-                panic!("{name} is not a struct");
-            };
-            assert_eq!(*span as usize, size, "size of {name}");
-            for (f, off) in fields {
-                let m = members.iter().find(|m| m.name.as_deref() == Some(*f));
-                assert_eq!(
-                    m.map(|m| m.offset as usize),
-                    Some(*off),
-                    "offset of {name}.{f}"
-                );
-            }
-        };
+        let check = validated(SHADER);
         check(
             "Node",
             size_of::<Node>(),

@@ -1,6 +1,7 @@
 //! The GPU side of the beam estimate, through wgpu (Vulkan, Metal, DX12, GL): adapter
-//! choice ([`open`]), the shared buffer layouts ([`layout`]) and the estimator
-//! ([`beams::GpuBeams`]). The CPU path in `estimate::cpu` computes the same sums.
+//! choice ([`open`]), the shared buffer layouts ([`layout`]), free-path sampling in WGSL
+//! ([`freepath`]) and the estimator ([`beams::GpuBeams`]). The CPU path in `estimate::cpu`
+//! computes the same sums.
 pub mod beams;
 pub mod freepath;
 pub mod layout;
@@ -124,10 +125,142 @@ pub fn open(kind: DeviceKind) -> Result<Option<Gpu>> {
     }))
 }
 
+/// Parses and validates a kernel's source as wgpu does at pipeline creation (panicking
+/// with naga's message), and returns a check that struct `name` has `size` bytes and each
+/// named field its offset: shared structs must match their Rust `Pod` types.
+#[cfg(test)]
+pub(crate) fn validated(source: &str) -> impl Fn(&str, usize, &[(&str, usize)]) {
+    let module = naga::front::wgsl::parse_str(source)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(source)));
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::empty(),
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| panic!("{}", e.emit_to_string(source)));
+    move |name, size, fields| {
+        let ty = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("struct {name} missing from the shader"))
+            .1;
+        let naga::TypeInner::Struct { members, span } = &ty.inner else {
+            panic!("{name} is not a struct");
+        };
+        assert_eq!(*span as usize, size, "size of {name}");
+        for (f, off) in fields {
+            let m = members.iter().find(|m| m.name.as_deref() == Some(*f));
+            assert_eq!(
+                m.map(|m| m.offset as usize),
+                Some(*off),
+                "offset of {name}.{f}"
+            );
+        }
+    }
+}
+
+/// Copies `size` bytes of `src` to the CPU at the end of `enc`'s commands, submits them and
+/// waits; `what` names the data in errors.
+pub(crate) fn read_back<T: bytemuck::Pod>(
+    gpu: &Gpu,
+    mut enc: wgpu::CommandEncoder,
+    src: &wgpu::Buffer,
+    size: u64,
+    what: &str,
+) -> Result<Vec<T>> {
+    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(what),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    enc.copy_buffer_to_buffer(src, 0, &staging, 0, size);
+    gpu.queue.submit([enc.finish()]);
+    let slice = staging.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| Error::Gpu(format!("waiting for {what}: {e}")))?;
+    rx.recv()
+        .map_err(|_| Error::Gpu(format!("reading {what} never completed")))?
+        .map_err(|e| Error::Gpu(format!("mapping {what}: {e}")))?;
+    let view = slice
+        .get_mapped_range()
+        .map_err(|e| Error::Gpu(format!("reading {what}: {e}")))?;
+    let data = bytemuck::cast_slice::<u8, T>(&view).to_vec();
+    drop(view);
+    staging.unmap();
+    Ok(data)
+}
+
+/// A buffer binding of a bind group layout, seen by `stages`.
+pub(crate) fn buffer_entry(
+    binding: u32,
+    stages: wgpu::ShaderStages,
+    ty: wgpu::BufferBindingType,
+    dynamic_offset: bool,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: stages,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: dynamic_offset,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+pub(crate) const READ: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: true };
+pub(crate) const READ_WRITE: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: false };
+pub(crate) const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
+
+/// `source` compiled, with a compute pipeline per entry point, each over one bind group of
+/// `bindings`.
+pub(crate) fn compute_pipelines(
+    dev: &wgpu::Device,
+    label: &str,
+    source: &str,
+    bindings: &wgpu::BindGroupLayout,
+    entries: &[&str],
+) -> (wgpu::ShaderModule, Vec<wgpu::ComputePipeline>) {
+    let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &[Some(bindings)],
+        immediate_size: 0,
+    });
+    let pipelines = entries
+        .iter()
+        .map(|entry| {
+            dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        })
+        .collect();
+    (module, pipelines)
+}
+
 #[cfg(test)]
 mod tests {
     use super::beams::SHADER;
     use super::layout::{Chunk, GridMeta, MediumBox, Params, Segment};
+    use super::validated;
     use crate::estimate::beams::{BeamPiece, BvhNode};
     use std::mem::{offset_of, size_of};
 
@@ -135,40 +268,7 @@ mod tests {
     /// struct it shares with the CPU has the Rust `Pod` type's size and field offsets.
     #[test]
     fn shader_validates_and_layouts_match() {
-        let module = naga::front::wgsl::parse_str(SHADER)
-            .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::empty(),
-        )
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SHADER)));
-        let layout = |name: &str| {
-            let ty = module
-                .types
-                .iter()
-                .find(|(_, t)| t.name.as_deref() == Some(name))
-                .unwrap_or_else(|| panic!("struct {name} missing from the shader"))
-                .1;
-            match &ty.inner {
-                naga::TypeInner::Struct { members, span } => (
-                    *span as usize,
-                    members
-                        .iter()
-                        .map(|m| (m.name.clone().unwrap_or_default(), m.offset as usize))
-                        .collect::<Vec<_>>(),
-                ),
-                _ => panic!("{name} is not a struct"),
-            }
-        };
-        let check = |name: &str, size: usize, fields: &[(&str, usize)]| {
-            let (span, members) = layout(name);
-            assert_eq!(span, size, "size of {name}");
-            for (f, off) in fields {
-                let m = members.iter().find(|m| m.0 == *f);
-                assert_eq!(m.map(|m| m.1), Some(*off), "offset of {name}.{f}");
-            }
-        };
+        let check = validated(SHADER);
         check(
             "Segment",
             size_of::<Segment>(),
