@@ -159,8 +159,9 @@ pub struct Machine {
     pub device: DeviceKind,
     /// How the GPU estimates primary camera segments: raster (each beam drawn as a quad on
     /// the film, the original PPB's way), gather (a beam BVH query per pixel, as for
-    /// segments after glass) or auto (raster where the adapter can blend float32 targets).
-    /// Both give the CPU's image; `ppb bench-gpu` times both.
+    /// segments after glass) or auto (the first pass rasterised, the second gathered, then
+    /// the one that took less GPU time per beam; gather where the adapter cannot blend
+    /// float32 targets). All give the CPU's image; `--stats` records the choice.
     #[arg(long, value_enum, default_value = "auto")]
     pub gpu_primary: PrimaryPath,
     /// The GPU's camera transmittance: steps (the CPU's estimate of each segment, per

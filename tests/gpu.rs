@@ -149,6 +149,57 @@ fn gpu_matches_cpu_on_glass_caustic() {
     });
 }
 
+/// `--gpu-primary auto` measures: a session rasterises pass 1, gathers pass 2, then keeps
+/// one of them (its stats say which, auto until then), and its image is the CPU's within
+/// float32 rounding throughout, with pipelining and a read-back mid-way.
+#[test]
+fn auto_primary_picks_by_measurement() {
+    use ppb::session::{Flow, Session};
+    let scene = "scenes/conformance/smoke-grid/scene.toml";
+    let Some(g) = gpu_or_skip(scene) else {
+        return;
+    };
+    let file = load(&data(scene)).expect("scene loads");
+    let mut s = file.settings.clone();
+    (s.width, s.height, s.light_paths) = (96, 96, 20_000);
+    let tracer = || Tracer::new(&file.scene, s.clone()).expect("renderer");
+    let mut gpu =
+        Session::open(tracer(), Some(g), PrimaryPath::Auto, CameraTr::Steps).expect("gpu session");
+    let mut cpu = Session::cpu(tracer());
+    let primary = |s: &Session| s.gpu_stats().and_then(|g| g.primary);
+    gpu.render(2).expect("gpu passes 1-2");
+    assert_eq!(
+        primary(&gpu),
+        Some(PrimaryPath::Auto),
+        "no choice before both are timed"
+    );
+    let early = gpu.image().expect("gpu image");
+    let more = |s: &mut Session| {
+        s.run(3..=6, |_, _| Ok::<_, ppb::error::Error>(Flow::Continue))
+            .expect("passes 3-6");
+        s.image().expect("image")
+    };
+    let late = more(&mut gpu);
+    let chosen = primary(&gpu);
+    assert!(
+        matches!(chosen, Some(PrimaryPath::Raster | PrimaryPath::Gather)),
+        "{chosen:?}"
+    );
+    let cpu_early = cpu.render(2).expect("cpu passes 1-2");
+    let cpu_late = more(&mut cpu);
+    for (g, c, when) in [
+        (&early, &cpu_early, "2 passes"),
+        (&late, &cpu_late, "6 passes"),
+    ] {
+        let m = ppb::compare::compare(g, c, None).expect("same size");
+        eprintln!(
+            "auto ({chosen:?}) after {when}: rel_l1 against the CPU {:.2e}",
+            m.rel_l1
+        );
+        assert!(m.rel_l1 < 1e-5, "{when}: rel_l1 {}", m.rel_l1);
+    }
+}
+
 /// Eq. 2's edge rule (`estimate::eq2::term`: t in [0, t_surf), s in [0, length), d < r)
 /// on both devices: one pixel, one camera segment (+x from the origin) and one beam per
 /// pass, the beam crossing the segment on an edge of the rule or just inside or outside

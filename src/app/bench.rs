@@ -526,7 +526,7 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
         };
         adapter = gpu.describe();
         let mut paths = vec![PrimaryPath::Gather];
-        if PrimaryPath::Auto.resolve(&gpu, s.width, s.height)? == PrimaryPath::Raster {
+        if PrimaryPath::Auto.resolve(&gpu, s.width, s.height)? != PrimaryPath::Gather {
             paths.insert(0, PrimaryPath::Raster);
         }
         let gpus = paths

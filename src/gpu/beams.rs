@@ -54,8 +54,9 @@ const WORKGROUP: u32 = 64;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PrimaryPath {
-    /// Raster where the adapter can blend float32 targets of the image's size, else
-    /// gather.
+    /// Measured: the first pass rasterised, the second gathered, then whichever took less
+    /// GPU time per beam; gather where the adapter cannot blend float32 targets of the
+    /// image's size.
     Auto,
     /// Beams drawn as film quads, one fragment per candidate pixel.
     Raster,
@@ -64,8 +65,8 @@ pub enum PrimaryPath {
 }
 
 impl PrimaryPath {
-    /// What `self` means on `gpu` for a `width` x `height` image; an error when raster is
-    /// asked for and the adapter cannot do it.
+    /// What `self` means on `gpu` for a `width` x `height` image (auto stays auto where
+    /// raster is possible); an error when raster is asked for and the adapter cannot do it.
     pub fn resolve(self, gpu: &Gpu, width: u32, height: u32) -> Result<PrimaryPath> {
         let why_not = if !gpu
             .device
@@ -87,7 +88,7 @@ impl PrimaryPath {
                 gpu.describe()
             ))),
             (PrimaryPath::Auto, Some(_)) | (PrimaryPath::Gather, _) => Ok(PrimaryPath::Gather),
-            (_, None) => Ok(PrimaryPath::Raster),
+            (p, None) => Ok(p),
         }
     }
 }
@@ -180,6 +181,9 @@ impl GpuStats {
 }
 
 struct InFlight {
+    /// How its primaries were estimated, and its beams (the trial's unit of work).
+    path: PrimaryPath,
+    beams: usize,
     submitted: Instant,
     upload_seconds: f64,
     poller: JoinHandle<Instant>,
@@ -247,6 +251,12 @@ struct Raster {
 pub struct GpuBeams {
     gpu: Gpu,
     camera: Pinhole,
+    /// How primaries are estimated now (raster or gather) ...
+    path: PrimaryPath,
+    /// ... and, for auto, GPU seconds per beam of the trial's raster and gather passes,
+    /// until both are known and the faster is kept.
+    trial: Option<[Option<f64>; 2]>,
+    /// What rasterising needs, where it is possible and asked for.
     raster: Option<Raster>,
     /// The rasterised primary sums `pixel_main` adds (a 1x1 texture it never reads when
     /// primaries are gathered).
@@ -290,7 +300,7 @@ impl GpuBeams {
         let [per_segment, per_pixel]: [wgpu::ComputePipeline; 2] = pipelines
             .try_into()
             .map_err(|_| Error::Gpu("two pipelines".into()))?;
-        let raster = (primary == PrimaryPath::Raster).then(|| {
+        let raster = (primary != PrimaryPath::Gather).then(|| {
             let layout = quad_layout(dev);
             Raster {
                 pipeline: quad_pipeline(dev, &module, &layout),
@@ -309,9 +319,6 @@ impl GpuBeams {
             return Err(Error::Gpu(format!("beam_estimate.wgsl: {e}")));
         }
         let (mut params, grid_words) = media_params(media)?;
-        if raster.is_some() {
-            params.raster_width = width;
-        }
         params.track_tr = u32::from(opts.camera_tr == CameraTr::Track);
         let grid_buf = storage_init(&gpu, "the density grids", bytemuck::cast_slice(&grid_words))?;
         let (mut octree_block, nodes) = octree_upload(media)?;
@@ -350,6 +357,12 @@ impl GpuBeams {
             pieces: Grow::new(dev, "beam pieces"),
             gpu,
             camera: *camera,
+            path: if primary == PrimaryPath::Auto {
+                PrimaryPath::Raster
+            } else {
+                primary
+            },
+            trial: (primary == PrimaryPath::Auto).then_some([None; 2]),
             raster,
             primary_sums,
             per_segment,
@@ -379,12 +392,29 @@ impl GpuBeams {
         &self.gpu
     }
 
-    /// How primary segments are estimated (never [`PrimaryPath::Auto`]).
+    /// How primary segments are estimated: [`PrimaryPath::Auto`] while auto's trial runs.
     pub fn primary(&self) -> PrimaryPath {
-        match self.raster {
-            Some(_) => PrimaryPath::Raster,
-            None => PrimaryPath::Gather,
+        match self.trial {
+            Some(_) => PrimaryPath::Auto,
+            None => self.path,
         }
+    }
+
+    /// The way the next pass's primaries go: auto's trial rasterises its first pass and
+    /// gathers its second; once both are timed it keeps the faster per beam.
+    fn next_path(&mut self) -> PrimaryPath {
+        if let Some([Some(raster), Some(gather)]) = self.trial {
+            self.trial = None;
+            self.path = if raster <= gather {
+                PrimaryPath::Raster
+            } else {
+                PrimaryPath::Gather
+            };
+            self.stats.primary = Some(self.path);
+        } else if let Some([Some(_), None]) = self.trial {
+            self.path = PrimaryPath::Gather;
+        }
+        self.path
     }
 
     /// Uploads pass `t` and dispatches its estimate into the accumulator; returns the
@@ -392,8 +422,9 @@ impl GpuBeams {
     pub fn submit(&mut self, t: &TracedPass, media: &Media) -> Result<Option<GpuTiming>> {
         let prev = self.wait()?;
         let start = Instant::now();
-        if t.beams.is_empty() || media.is_empty() || (self.raster.is_none() && t.beam_map.is_none())
-        {
+        let path = self.next_path();
+        let raster = path == PrimaryPath::Raster;
+        if t.beams.is_empty() || media.is_empty() || (!raster && t.beam_map.is_none()) {
             return Ok(prev);
         }
         let (nodes, pieces) = match &t.beam_map {
@@ -402,11 +433,12 @@ impl GpuBeams {
         };
         let origin = self.camera.origin();
         let steps = self.params.track_tr == 0;
-        let segs = SegmentUpload::build(origin, &t.camera, media, self.raster.is_some(), steps);
+        let segs = SegmentUpload::build(origin, &t.camera, media, raster, steps);
         if segs.pixel_first.len() != self.pixels as usize + 1 {
             return Err(Error::Gpu("pass size differs from the estimator's".into()));
         }
         self.params.radius = t.beam_radius;
+        self.params.raster_width = if raster { self.camera.width() } else { 0 };
         self.params.pass_seed = mix64(self.seed ^ mix64(u64::from(t.index))) as u32;
         self.gpu
             .queue
@@ -419,7 +451,11 @@ impl GpuBeams {
             .write(&self.gpu, bytemuck::cast_slice(&segs.tr_steps))?;
         self.nodes.write(&self.gpu, bytemuck::cast_slice(&nodes))?;
         self.pieces.write(&self.gpu, bytemuck::cast_slice(pieces))?;
-        let quads = self.write_quads(t, &segs)?;
+        let quads = if raster {
+            self.write_quads(t, &segs)?
+        } else {
+            0
+        };
         let tr_bytes = std::mem::size_of_val(&segs.tr_steps[..]) as u64;
         self.stats.tr_step_bytes += tr_bytes;
         self.stats.upload_bytes += tr_bytes
@@ -452,7 +488,7 @@ impl GpuBeams {
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        if let Some(r) = &self.raster {
+        if let Some(r) = self.raster.as_ref().filter(|_| raster) {
             self.draw_quads(r, &mut enc, quads);
         }
         let passes = seg_chunks
@@ -476,6 +512,8 @@ impl GpuBeams {
             Instant::now()
         });
         self.in_flight = Some(InFlight {
+            path,
+            beams: t.beams.len(),
             submitted,
             upload_seconds: (submitted - start).as_secs_f64(),
             poller,
@@ -557,6 +595,11 @@ impl GpuBeams {
             .map_err(|_| Error::Gpu("the GPU poll thread panicked".into()))?;
         let waited = t0.elapsed();
         self.check()?;
+        if let Some(trial) = &mut self.trial {
+            let k = usize::from(f.path == PrimaryPath::Gather);
+            let per_beam = (done - f.submitted).as_secs_f64() / f.beams.max(1) as f64;
+            trial[k].get_or_insert(per_beam);
+        }
         Ok(Some(GpuTiming {
             submitted: f.submitted,
             done,
@@ -635,9 +678,10 @@ impl Estimator for GpuBeams {
         self.gpu.describe()
     }
 
-    /// Gathered segments walk the beam BVH; rasterised primaries do not.
+    /// Gathered segments walk the beam BVH; rasterised primaries do not (auto's trial
+    /// keeps it until the choice is made).
     fn needs_beam_map(&self) -> bool {
-        self.raster.is_none()
+        self.path == PrimaryPath::Gather || self.trial.is_some()
     }
 
     fn estimate(
