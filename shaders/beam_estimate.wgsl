@@ -168,7 +168,8 @@ fn segment_radiance(seg: Segment) -> vec4<f32> {
             }
         }
     }
-    return sum;
+    // A walk the adapter ended early (lavapipe's loop limit) has lost crossings.
+    return select(sum, vec4<f32>(LOOP_CUT), node != EMPTY);
 }
 
 @compute @workgroup_size(64)

@@ -204,6 +204,9 @@ struct Track {
     tr: f32,
     lookups: u32,
     steps: u32,
+    // The loop ended before every grid was tracked (an adapter's loop limit, or
+    // FP_MAX_ITERS): the result is not an estimate.
+    cut: bool,
 }
 
 // Tracking through every grid over [0, tmax] with the realization keyed by `seed`:
@@ -212,7 +215,7 @@ struct Track {
 // over the tentative collisions (`FreePath::ratio_transmittance`). The optical depth left
 // is carried across a grid's segments; segments of majorant 0 are skipped.
 fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Track {
-    var out = Track(tmax, false, 1.0, 0u, 0u);
+    var out = Track(tmax, false, 1.0, 0u, 0u, false);
     var limit = tmax;
     var gi = 0u;
     var w: Walk;
@@ -278,6 +281,7 @@ fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Trac
             }
         }
     }
+    out.cut = gi < params.grid_count;
     return out;
 }
 
@@ -291,6 +295,8 @@ fn free_path(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32) -> Track {
 // stops past t, so calls with one seed and different t share their tentative collisions:
 // the values are non-increasing in t and each is the product over those before t (one
 // realization per camera segment serves every beam crossing on it).
+// LOOP_CUT if tracking was cut short.
 fn ratio_tr_to(o: vec3<f32>, d: vec3<f32>, t: f32, seed: u32) -> f32 {
-    return fp_track(o, d, t, seed, FP_RATIO).tr;
+    let r = fp_track(o, d, t, seed, FP_RATIO);
+    return select(r.tr, LOOP_CUT, r.cut);
 }

@@ -9,6 +9,10 @@ const MAX_GRIDS: u32 = 8u;
 const EMPTY: u32 = 0xffffffffu;
 const TILE_SLOT: u32 = 0x80000000u;
 const PI: f32 = 3.14159265358979;
+// What a result becomes when a loop was ended before its work was done (Mesa's gallivm
+// ends an invocation's loops after 65,535 iterations in all): a negative radiance, which no
+// true estimate has, so the readback can refuse the sums instead of returning wrong ones.
+const LOOP_CUT: f32 = -1e30;
 
 struct MediumBox {
     min: vec3<f32>,

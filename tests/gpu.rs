@@ -151,7 +151,8 @@ fn gpu_matches_cpu_on_glass_caustic() {
 
 /// `--gpu-primary auto` measures: a session rasterises pass 1, gathers pass 2, then keeps
 /// one of them (its stats say which, auto until then), and its image is the CPU's within
-/// float32 rounding throughout, with pipelining and a read-back mid-way.
+/// float32 rounding throughout, with pipelining and a read-back mid-way. (`Session::open`
+/// takes raster at once on software adapters: `PrimaryPath::for_adapter`.)
 #[test]
 fn auto_primary_picks_by_measurement() {
     use ppb::session::{Flow, Session};
@@ -163,8 +164,11 @@ fn auto_primary_picks_by_measurement() {
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths) = (96, 96, 20_000);
     let tracer = || Tracer::new(&file.scene, s.clone()).expect("renderer");
-    let mut gpu =
-        Session::open(tracer(), Some(g), PrimaryPath::Auto, CameraTr::Steps).expect("gpu session");
+    // GpuBeams itself, since a session on a software adapter skips the trial.
+    let t = tracer();
+    let opts = GpuOptions::new(PrimaryPath::Auto, CameraTr::Steps, &t.settings);
+    let est = GpuBeams::new(g, t.media(), t.camera(), opts).expect("gpu");
+    let mut gpu = Session::new(t, Box::new(est));
     let mut cpu = Session::cpu(tracer());
     let primary = |s: &Session| s.gpu_stats().and_then(|g| g.primary);
     gpu.render(2).expect("gpu passes 1-2");
@@ -197,6 +201,53 @@ fn auto_primary_picks_by_measurement() {
             m.rel_l1
         );
         assert!(m.rel_l1 < 1e-5, "{when}: rel_l1 {}", m.rel_l1);
+    }
+}
+
+/// Where an adapter ends a walk early (lavapipe and llvmpipe stop an invocation's loops
+/// after 65,535 iterations), the estimate must refuse its sums, not return wrong ones:
+/// fog-box's pure method at 128x128 with 100k light paths sends hundreds of crossings and
+/// thousands of BVH nodes through each primary segment. The gather either matches the CPU
+/// or, on a software adapter, errors naming the loop limit; the quads match the CPU.
+#[test]
+fn a_cut_walk_is_an_error_not_a_wrong_image() {
+    let scene = "scenes/conformance/fog-box/scene.toml";
+    let Some(g) = gpu_or_skip(scene) else {
+        return;
+    };
+    let file = load(&data(scene)).expect("scene loads");
+    let mut s = file.settings.clone();
+    (s.width, s.height, s.light_paths) = (128, 128, 100_000);
+    s.method = ppb::settings::Method::Ppb;
+    let r = Tracer::new(&file.scene, s).expect("renderer");
+    let t = r.trace(&r.plan().pass(1), None, true);
+    let (cpu, _) = r.beam_image(&t);
+    let software = g.info.device_type == wgpu::DeviceType::Cpu;
+    for primary in PRIMARY {
+        let opts = GpuOptions::new(primary, CameraTr::Steps, &r.settings);
+        let mut est = GpuBeams::new(g.clone(), r.media(), r.camera(), opts).expect("gpu");
+        est.submit(&t, r.media()).expect("submit");
+        match est.read() {
+            Ok((gpu, _)) => {
+                let mut diff = DeviceDiff::default();
+                diff.add(&cpu, &gpu);
+                eprintln!("{primary:?}: rel_l1 against the CPU {:.2e}", diff.rel_l1());
+                assert!(
+                    diff.rel_l1() < 1e-5,
+                    "{primary:?}: rel_l1 {}",
+                    diff.rel_l1()
+                );
+            }
+            Err(e) => {
+                eprintln!("{primary:?}: {e}");
+                assert!(
+                    software && primary == PrimaryPath::Gather,
+                    "{primary:?} on {}: {e}",
+                    g.describe()
+                );
+                assert!(e.to_string().contains("ended a shader loop"), "{e}");
+            }
+        }
     }
 }
 

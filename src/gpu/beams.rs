@@ -56,7 +56,7 @@ const WORKGROUP: u32 = 64;
 pub enum PrimaryPath {
     /// Measured: the first pass rasterised, the second gathered, then whichever took less
     /// GPU time per beam; gather where the adapter cannot blend float32 targets of the
-    /// image's size.
+    /// image's size; raster on software adapters, whose loop limit cuts long gathers.
     Auto,
     /// Beams drawn as film quads, one fragment per candidate pixel.
     Raster,
@@ -65,6 +65,18 @@ pub enum PrimaryPath {
 }
 
 impl PrimaryPath {
+    /// What a render asks of `gpu`: auto on a software adapter is raster where possible,
+    /// since those end long loops early (see [`GpuBeams::read`]) and a gathered trial pass
+    /// could fail there.
+    pub fn for_adapter(self, gpu: &Gpu, width: u32, height: u32) -> PrimaryPath {
+        let software = gpu.info.device_type == wgpu::DeviceType::Cpu;
+        let raster_ok = PrimaryPath::Raster.resolve(gpu, width, height).is_ok();
+        match self {
+            PrimaryPath::Auto if software && raster_ok => PrimaryPath::Raster,
+            p => p,
+        }
+    }
+
     /// What `self` means on `gpu` for a `width` x `height` image (auto stays auto where
     /// raster is possible); an error when raster is asked for and the adapter cannot do it.
     pub fn resolve(self, gpu: &Gpu, width: u32, height: u32) -> Result<PrimaryPath> {
@@ -617,7 +629,15 @@ impl GpuBeams {
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let data = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
+        let data: Vec<[f32; 4]> = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
+        if data.iter().flatten().any(|&v| v < 0.0) {
+            return Err(Error::Gpu(format!(
+                "{} ended a shader loop before its work was done (Mesa's lavapipe and \
+                 llvmpipe stop loops after 65,535 iterations), so some beam sums are wrong; \
+                 use --gpu-primary raster, fewer light paths per pass, or --device cpu",
+                self.gpu.describe()
+            )));
+        }
         self.check()?;
         Ok((data, timing))
     }
