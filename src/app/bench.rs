@@ -441,6 +441,8 @@ struct DeviceRace {
     gpu_seconds: f64,
     pairs: u64,
     diff: DeviceDiff,
+    /// Why this way stopped (a software adapter's loop limit, say); the others go on.
+    failed: Option<String>,
 }
 
 /// An estimator that runs every pass's beam estimate on the CPU (into the film) and, on
@@ -474,18 +476,31 @@ impl Estimator for Race {
         let cpu_seconds = start.elapsed().as_secs_f64();
         film.add(&cpu);
         for (k, gpu) in self.gpus.iter_mut().enumerate() {
-            gpu.clear()?;
-            let start = Instant::now();
-            gpu.submit(t, tracer.media())?;
-            let done = gpu.wait()?.map_or_else(Instant::now, |t| t.done);
-            let gpu_seconds = (done - start).as_secs_f64();
-            let (acc, _) = gpu.read()?;
+            if self.out.lock().unwrap_or_else(|e| e.into_inner())[k]
+                .failed
+                .is_some()
+            {
+                continue;
+            }
+            let run = |gpu: &mut GpuBeams| -> PpbResult<(f64, Vec<[f32; 4]>)> {
+                gpu.clear()?;
+                let start = Instant::now();
+                gpu.submit(t, tracer.media())?;
+                let done = gpu.wait()?.map_or_else(Instant::now, |t| t.done);
+                Ok(((done - start).as_secs_f64(), gpu.read()?.0))
+            };
+            let result = run(gpu);
             let mut out = self.out.lock().unwrap_or_else(|e| e.into_inner());
             let o = &mut out[k];
-            o.cpu_seconds += cpu_seconds;
-            o.gpu_seconds += gpu_seconds;
-            o.pairs += evals;
-            o.diff.add(&cpu, &acc);
+            match result {
+                Ok((gpu_seconds, acc)) => {
+                    o.cpu_seconds += cpu_seconds;
+                    o.gpu_seconds += gpu_seconds;
+                    o.pairs += evals;
+                    o.diff.add(&cpu, &acc);
+                }
+                Err(e) => o.failed = Some(e.to_string()),
+            }
         }
         Ok(evals)
     }
@@ -549,6 +564,14 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
         })?;
         let races = out.lock().unwrap_or_else(|e| e.into_inner());
         for (path, r) in paths.iter().zip(races.iter()) {
+            if let Some(why) = &r.failed {
+                println!(
+                    "{:<22} {:<7} failed: {why}",
+                    scene_name(scene),
+                    format!("{path:?}").to_lowercase()
+                );
+                continue;
+            }
             let n = args.bench.passes.max(1) as f64;
             println!(
             "{:<22} {:<7} {:>9} {:>8} {:>10.1} {:>10.1} {:>8.2} {:>12.0} {:>12.3e} {:>12.3e} {:>9.1e} {:>8}",
