@@ -259,7 +259,7 @@ pub(crate) fn compute_pipelines(
 #[cfg(test)]
 mod tests {
     use super::beams::SHADER;
-    use super::layout::{Chunk, GridMeta, MediumBox, Params, Segment};
+    use super::layout::{BeamQuad, Chunk, GridMeta, MediumBox, Params, Segment};
     use super::validated;
     use crate::estimate::beams::{BeamPiece, BvhNode};
     use std::mem::{offset_of, size_of};
@@ -338,6 +338,14 @@ mod tests {
                 ("track_tr", offset_of!(Params, track_tr)),
                 ("boxes", offset_of!(Params, boxes)),
                 ("grids", offset_of!(Params, grids)),
+            ],
+        );
+        check(
+            "BeamQuad",
+            size_of::<BeamQuad>(),
+            &[
+                ("corners", offset_of!(BeamQuad, corners)),
+                ("piece", offset_of!(BeamQuad, piece)),
             ],
         );
         check(
