@@ -631,10 +631,16 @@ impl GpuBeams {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         let data: Vec<[f32; 4]> = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
         if data.iter().flatten().any(|&v| v < 0.0) {
+            let (w, h) = (self.camera.width(), self.camera.height());
+            let could_raster = PrimaryPath::Raster.resolve(&self.gpu, w, h).is_ok();
+            let raster = match self.path {
+                PrimaryPath::Gather if could_raster => "--gpu-primary raster, ",
+                _ => "",
+            };
             return Err(Error::Gpu(format!(
                 "{} ended a shader loop before its work was done (Mesa's lavapipe and \
                  llvmpipe stop loops after 65,535 iterations), so some beam sums are wrong; \
-                 use --gpu-primary raster, fewer light paths per pass, or --device cpu",
+                 use {raster}fewer light paths per pass or --device cpu",
                 self.gpu.describe()
             )));
         }
