@@ -72,6 +72,10 @@ struct BeamQuad {
 @group(0) @binding(12) var<storage, read> quads: array<BeamQuad>;
 @group(0) @binding(13) var<storage, read> octree_nodes: array<Node>;
 @group(0) @binding(14) var<uniform> octrees: Octrees;
+// Where each segment's BVH walk stands (node, piece; node EMPTY: done), zero before a
+// pass's first round, and how many walks a round left unfinished.
+@group(0) @binding(15) var<storage, read_write> walk_state: array<vec2<u32>>;
+@group(0) @binding(16) var<storage, read_write> unfinished: atomic<u32>;
 
 // The grid transmittance estimate at t: the value after the last step before t.
 fn grid_tr(seg: Segment, t: f32) -> f32 {
@@ -147,13 +151,17 @@ fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
 // Stackless walk of the pre-ordered BVH, one node or one piece per iteration (a flat loop:
 // nested divergent loops were miscompiled by Mesa's gallivm): a hit inner node continues
 // with its first child (the next node); a missed node or a finished leaf jumps past its
-// subtree.
-fn segment_radiance(seg: Segment) -> vec4<f32> {
+// subtree. The walk resumes from `walk_state[i]` and stops after `params.walk_budget`
+// iterations (software adapters end long loops early), saving where it stopped and
+// counting itself in `unfinished` for the host to dispatch another round.
+fn segment_radiance(seg: Segment, i: u32) -> vec4<f32> {
     let inv = safe_inv(seg.dir);
     var sum = vec4<f32>(0.0);
-    var node = select(EMPTY, 0u, arrayLength(&nodes) > 0u);
-    var k = 0u;
-    while node != EMPTY {
+    var node = walk_state[i].x;
+    var k = walk_state[i].y;
+    var it = 0u;
+    while node != EMPTY && it < params.walk_budget {
+        it += 1u;
         let n = nodes[node];
         if k == 0u && !hits(n, seg.origin, inv, seg.t0, seg.t1) {
             node = n.skip;
@@ -168,8 +176,12 @@ fn segment_radiance(seg: Segment) -> vec4<f32> {
             }
         }
     }
-    // A walk the adapter ended early (lavapipe's loop limit) has lost crossings.
-    return select(sum, vec4<f32>(LOOP_CUT), node != EMPTY);
+    walk_state[i] = vec2<u32>(node, k);
+    if node != EMPTY && it == params.walk_budget {
+        atomicAdd(&unfinished, 1u);
+    }
+    // A walk the adapter ended before its budget (lavapipe's loop limit) lost crossings.
+    return select(sum, vec4<f32>(LOOP_CUT), node != EMPTY && it < params.walk_budget);
 }
 
 @compute @workgroup_size(64)
@@ -178,9 +190,12 @@ fn segment_main(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let i = chunk.first + id.x;
+    if walk_state[i].x == EMPTY {
+        return;
+    }
     let seg = segments[i];
-    let r = segment_radiance(seg);
-    seg_out[i] = vec4<f32>(seg.beta * r.xyz, r.w);
+    let r = segment_radiance(seg, i);
+    seg_out[i] += vec4<f32>(seg.beta * r.xyz, r.w);
 }
 
 @compute @workgroup_size(64)

@@ -53,7 +53,8 @@ struct Params {
     // (else the kernels read the CPU's estimate as steps).
     pass_seed: u32,
     track_tr: u32,
-    _pad0: u32,
+    // BVH walk iterations per segment per dispatch round.
+    walk_budget: u32,
     _pad1: u32,
     boxes: array<MediumBox, MAX_BOXES>,
     grids: array<GridMeta, MAX_GRIDS>,

@@ -161,8 +161,7 @@ pub struct Machine {
     /// the film, the original PPB's way), gather (a beam BVH query per pixel, as for
     /// segments after glass) or auto (the first pass rasterised, the second gathered, then
     /// the one that took less GPU time per beam; gather where the adapter cannot blend
-    /// float32 targets, raster on software adapters such as lavapipe). All give the CPU's
-    /// image; `--stats` records the choice.
+    /// float32 targets). All give the CPU's image; `--stats` records the choice.
     #[arg(long, value_enum, default_value = "auto")]
     pub gpu_primary: PrimaryPath,
     /// The GPU's camera transmittance: steps (the CPU's estimate of each segment, per

@@ -75,8 +75,6 @@ impl Session {
     ) -> Result<Self> {
         let estimator: Box<dyn Estimator> = match gpu {
             Some(g) => {
-                let (w, h) = (tracer.settings.width, tracer.settings.height);
-                let primary = primary.for_adapter(&g, w, h);
                 let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
                 Box::new(GpuBeams::new(g, tracer.media(), tracer.camera(), opts)?)
             }

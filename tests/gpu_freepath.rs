@@ -400,6 +400,7 @@ fn beam_estimate_tracks_camera_transmittance() {
         camera_tr: CameraTr::Track,
         seed: 7,
         free_path: Mode::Adaptive,
+        walk_budget: None,
     };
     let mut est = GpuBeams::new(g, &media, &camera, opts).expect("gpu");
     let pixels = (SIDE * SIDE) as usize;

@@ -48,6 +48,10 @@ pub const SHADER: &str = concat!(
 /// Segments or pixels per dispatch: long single dispatches can lose the device.
 pub const CHUNK: u32 = 65536;
 const WORKGROUP: u32 = 64;
+/// BVH walk iterations per segment per round on software adapters, which end an
+/// invocation's loops after 65,535 iterations in all, its crossings' own loops included:
+/// walks were cut at 4,600-4,800 iterations where crossings were dense.
+pub const SOFTWARE_WALK_BUDGET: u32 = 1024;
 
 /// How the GPU estimates primary camera segments (`--gpu-primary`). Both give the CPU's
 /// sums; which is faster depends on the GPU and the scene (`ppb bench-gpu` times both).
@@ -56,7 +60,7 @@ const WORKGROUP: u32 = 64;
 pub enum PrimaryPath {
     /// Measured: the first pass rasterised, the second gathered, then whichever took less
     /// GPU time per beam; gather where the adapter cannot blend float32 targets of the
-    /// image's size; raster on software adapters, whose loop limit cuts long gathers.
+    /// image's size.
     Auto,
     /// Beams drawn as film quads, one fragment per candidate pixel.
     Raster,
@@ -65,18 +69,6 @@ pub enum PrimaryPath {
 }
 
 impl PrimaryPath {
-    /// What a render asks of `gpu`: auto on a software adapter is raster where possible,
-    /// since those end long loops early (see [`GpuBeams::read`]) and a gathered trial pass
-    /// could fail there.
-    pub fn for_adapter(self, gpu: &Gpu, width: u32, height: u32) -> PrimaryPath {
-        let software = gpu.info.device_type == wgpu::DeviceType::Cpu;
-        let raster_ok = PrimaryPath::Raster.resolve(gpu, width, height).is_ok();
-        match self {
-            PrimaryPath::Auto if software && raster_ok => PrimaryPath::Raster,
-            p => p,
-        }
-    }
-
     /// What `self` means on `gpu` for a `width` x `height` image (auto stays auto where
     /// raster is possible); an error when raster is asked for and the adapter cannot do it.
     pub fn resolve(self, gpu: &Gpu, width: u32, height: u32) -> Result<PrimaryPath> {
@@ -126,6 +118,9 @@ pub struct GpuOptions {
     pub camera_tr: CameraTr,
     pub seed: u64,
     pub free_path: Mode,
+    /// BVH walk iterations per segment per dispatch round; None: unbounded on hardware,
+    /// [`SOFTWARE_WALK_BUDGET`] on software adapters.
+    pub walk_budget: Option<u32>,
 }
 
 impl GpuOptions {
@@ -136,6 +131,7 @@ impl GpuOptions {
             camera_tr,
             seed: settings.seed,
             free_path: settings.free_path,
+            walk_budget: None,
         }
     }
 }
@@ -288,6 +284,9 @@ pub struct GpuBeams {
     segments: Grow,
     pixel_first: Grow,
     seg_out: Grow,
+    walk_state: Grow,
+    /// How many walks a dispatch round left unfinished (one u32).
+    unfinished: wgpu::Buffer,
     tr_steps: Grow,
     nodes: Grow,
     pieces: Grow,
@@ -332,6 +331,12 @@ impl GpuBeams {
         }
         let (mut params, grid_words) = media_params(media)?;
         params.track_tr = u32::from(opts.camera_tr == CameraTr::Track);
+        let software = gpu.info.device_type == wgpu::DeviceType::Cpu;
+        params.walk_budget = opts.walk_budget.unwrap_or(if software {
+            SOFTWARE_WALK_BUDGET
+        } else {
+            u32::MAX
+        });
         let grid_buf = storage_init(&gpu, "the density grids", bytemuck::cast_slice(&grid_words))?;
         let (mut octree_block, nodes) = octree_upload(media)?;
         octree_block.mode = mode_word(opts.free_path);
@@ -364,6 +369,15 @@ impl GpuBeams {
             segments: Grow::new(dev, "segments"),
             pixel_first: Grow::new(dev, "pixel ranges"),
             seg_out: Grow::new(dev, "segment results"),
+            walk_state: Grow::new(dev, "walk states"),
+            unfinished: dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("walks left"),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
             tr_steps: Grow::new(dev, "transmittance steps"),
             nodes: Grow::new(dev, "beam BVH"),
             pieces: Grow::new(dev, "beam pieces"),
@@ -479,6 +493,7 @@ impl GpuBeams {
                 + quads as usize * std::mem::size_of::<BeamQuad>()) as u64;
         let n_segs = segs.segments.len() as u32;
         self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
+        self.walk_state.reserve(&self.gpu, n_segs as u64 * 8)?;
         let seg_chunks = chunks(n_segs);
         let pixel_chunks = chunks(self.pixels);
         let table: Vec<u8> = seg_chunks
@@ -503,16 +518,32 @@ impl GpuBeams {
         if let Some(r) = self.raster.as_ref().filter(|_| raster) {
             self.draw_quads(r, &mut enc, quads);
         }
-        let passes = seg_chunks
-            .iter()
-            .map(|c| (&self.per_segment, c))
-            .chain(pixel_chunks.iter().map(|c| (&self.per_pixel, c)));
-        for (k, (pipeline, c)) in passes.enumerate() {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &bind, &[(k as u64 * self.chunk_stride) as u32]);
-            pass.dispatch_workgroups(c.count.div_ceil(WORKGROUP), 1, 1);
+        enc.clear_buffer(&self.seg_out.buf, 0, None);
+        enc.clear_buffer(&self.walk_state.buf, 0, None);
+        let rounds = self.params.walk_budget != u32::MAX && n_segs > 0;
+        loop {
+            enc.clear_buffer(&self.unfinished, 0, None);
+            self.dispatch(&mut enc, &bind, &self.per_segment, &seg_chunks, 0);
+            if !rounds {
+                break;
+            }
+            // A software adapter: run this round and go on while walks remain.
+            let left: Vec<u32> = read_back(&self.gpu, enc, &self.unfinished, 4, "walks left")?;
+            enc = self
+                .gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            if left[0] == 0 {
+                break;
+            }
         }
+        self.dispatch(
+            &mut enc,
+            &bind,
+            &self.per_pixel,
+            &pixel_chunks,
+            seg_chunks.len(),
+        );
         let index = self.gpu.queue.submit([enc.finish()]);
         let submitted = Instant::now();
         let device = self.gpu.device.clone();
@@ -532,6 +563,25 @@ impl GpuBeams {
         });
         self.check()?;
         Ok(prev)
+    }
+
+    /// Dispatches `pipeline` over `chunks`, whose entries in the chunk table start at
+    /// `first`.
+    fn dispatch(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        bind: &wgpu::BindGroup,
+        pipeline: &wgpu::ComputePipeline,
+        chunks: &[Chunk],
+        first: usize,
+    ) {
+        for (k, c) in chunks.iter().enumerate() {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(pipeline);
+            let offset = ((first + k) as u64 * self.chunk_stride) as u32;
+            pass.set_bind_group(0, bind, &[offset]);
+            pass.dispatch_workgroups(c.count.div_ceil(WORKGROUP), 1, 1);
+        }
     }
 
     /// Uploads the primary segments and the quads of the pass's beams when primaries are
@@ -693,7 +743,12 @@ impl GpuBeams {
             .into_iter()
             .enumerate()
             .map(|(i, r)| (i as u32, r))
-            .chain([(13, whole(&self.octree_nodes)), (14, whole(&self.octrees))])
+            .chain([
+                (13, whole(&self.octree_nodes)),
+                (14, whole(&self.octrees)),
+                (15, whole(&self.walk_state.buf)),
+                (16, whole(&self.unfinished)),
+            ])
             .collect();
         bind_group(&self.gpu.device, &self.layout, &entries)
     }
@@ -882,6 +937,8 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         entry(9, READ_WRITE, false),
         entry(13, READ, false),
         entry(14, UNIFORM, false),
+        entry(15, READ_WRITE, false),
+        entry(16, READ_WRITE, false),
     ];
     let sums = wgpu::BindGroupLayoutEntry {
         binding: 10,

@@ -63,7 +63,11 @@ pub struct Params {
     pub pass_seed: u32,
     /// ... and whether it is (1), else the kernels read the CPU's estimate as steps (0).
     pub track_tr: u32,
-    pub _pad: [u32; 2],
+    /// BVH walk iterations per segment per dispatch round: unbounded on hardware, a few
+    /// thousand on software adapters, which end an invocation's loops after 65,535
+    /// iterations in all; longer walks resume in further rounds.
+    pub walk_budget: u32,
+    pub _pad: u32,
     pub boxes: [MediumBox; MAX_BOXES],
     pub grids: [GridMeta; MAX_GRIDS],
 }
@@ -113,7 +117,8 @@ pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
         raster_width: 0,
         pass_seed: 0,
         track_tr: 0,
-        _pad: [0; 2],
+        walk_budget: u32::MAX,
+        _pad: 0,
         boxes: [MediumBox::default(); MAX_BOXES],
         grids: [GridMeta::default(); MAX_GRIDS],
     };

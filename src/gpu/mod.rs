@@ -336,6 +336,7 @@ mod tests {
                 ("raster_width", offset_of!(Params, raster_width)),
                 ("pass_seed", offset_of!(Params, pass_seed)),
                 ("track_tr", offset_of!(Params, track_tr)),
+                ("walk_budget", offset_of!(Params, walk_budget)),
                 ("boxes", offset_of!(Params, boxes)),
                 ("grids", offset_of!(Params, grids)),
             ],
