@@ -73,9 +73,9 @@ struct BeamQuad {
 @group(0) @binding(13) var<storage, read> octree_nodes: array<Node>;
 @group(0) @binding(14) var<uniform> octrees: Octrees;
 // Where each segment's BVH walk stands (node, piece; node EMPTY: done), zero before a
-// pass's first round, and how many walks a round left unfinished.
+// pass's first round, and how many walks a round left unfinished ([0]) or had cut ([1]).
 @group(0) @binding(15) var<storage, read_write> walk_state: array<vec2<u32>>;
-@group(0) @binding(16) var<storage, read_write> unfinished: atomic<u32>;
+@group(0) @binding(16) var<storage, read_write> walks_left: array<atomic<u32>, 2>;
 
 // The grid transmittance estimate at t: the value after the last step before t.
 fn grid_tr(seg: Segment, t: f32) -> f32 {
@@ -152,9 +152,9 @@ fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
 // nested divergent loops were miscompiled by Mesa's gallivm): a hit inner node continues
 // with its first child (the next node); a missed node or a finished leaf jumps past its
 // subtree. The walk resumes from `walk_state[i]` and stops after `params.walk_budget`
-// iterations (software adapters end long loops early), saving where it stopped and
-// counting itself in `unfinished` for the host to dispatch another round.
-fn segment_radiance(seg: Segment, i: u32) -> vec4<f32> {
+// iterations (software adapters end long loops early); `segment_main` saves where it
+// stopped.
+fn segment_radiance(seg: Segment, i: u32) -> Walked {
     let inv = safe_inv(seg.dir);
     var sum = vec4<f32>(0.0);
     var node = walk_state[i].x;
@@ -176,12 +176,15 @@ fn segment_radiance(seg: Segment, i: u32) -> vec4<f32> {
             }
         }
     }
-    walk_state[i] = vec2<u32>(node, k);
-    if node != EMPTY && it == params.walk_budget {
-        atomicAdd(&unfinished, 1u);
-    }
     // A walk the adapter ended before its budget (lavapipe's loop limit) lost crossings.
-    return select(sum, vec4<f32>(LOOP_CUT), node != EMPTY && it < params.walk_budget);
+    return Walked(sum, vec2<u32>(node, k), node != EMPTY && it < params.walk_budget);
+}
+
+// A round of one segment's walk: its sum, where it stopped, and whether the adapter cut it.
+struct Walked {
+    sum: vec4<f32>,
+    state: vec2<u32>,
+    cut: bool,
 }
 
 @compute @workgroup_size(64)
@@ -194,8 +197,19 @@ fn segment_main(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let seg = segments[i];
-    let r = segment_radiance(seg, i);
-    seg_out[i] += vec4<f32>(seg.beta * r.xyz, r.w);
+    let w = segment_radiance(seg, i);
+    if w.cut && params.walk_budget != EMPTY {
+        // In rounds: redo this round's part with the smaller budget the host then sets.
+        atomicAdd(&walks_left[1], 1u);
+    } else {
+        // In one unbounded round a cut cannot be redone: mark the sums as wrong.
+        let r = select(w.sum, vec4<f32>(LOOP_CUT), w.cut);
+        seg_out[i] += vec4<f32>(seg.beta * r.xyz, r.w);
+        walk_state[i] = w.state;
+        if w.state.x != EMPTY {
+            atomicAdd(&walks_left[0], 1u);
+        }
+    }
 }
 
 @compute @workgroup_size(64)

@@ -206,8 +206,30 @@ fn auto_primary_picks_by_measurement() {
 /// iterations). With the walk split into rounds (the default budget) the gather matches the
 /// CPU, as do the quads; with one unbounded round, a software adapter's cut walk must be
 /// refused with an error naming the limit, never returned as sums (hardware: a match).
+/// cloud-hg at full size (tiles: many loop iterations per crossing) needs rounds with a
+/// halved budget on lavapipe; its gather must match too.
 #[test]
 fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
+    let Some(g) = gpu_or_skip("cloud-hg") else {
+        return;
+    };
+    let file = load(&data("scenes/conformance/cloud-hg/scene.toml")).expect("scene loads");
+    let mut s = file.settings.clone();
+    s.method = ppb::settings::Method::Ppb;
+    let r = Tracer::new(&file.scene, s).expect("renderer");
+    let t = r.trace(&r.plan().pass(1), None, true);
+    let (cpu, _) = r.beam_image(&t);
+    let opts = GpuOptions::new(PrimaryPath::Gather, CameraTr::Steps, &r.settings);
+    let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
+    est.submit(&t, r.media()).expect("submit");
+    let mut diff = DeviceDiff::default();
+    diff.add(&cpu, &est.read().expect("cloud-hg gathered").0);
+    eprintln!(
+        "cloud-hg gathered: rel_l1 against the CPU {:.2e}",
+        diff.rel_l1()
+    );
+    assert!(diff.rel_l1() < 1e-5, "cloud-hg: rel_l1 {}", diff.rel_l1());
+
     let scene = "scenes/conformance/fog-box/scene.toml";
     let Some(g) = gpu_or_skip(scene) else {
         return;

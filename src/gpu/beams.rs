@@ -52,6 +52,8 @@ const WORKGROUP: u32 = 64;
 /// invocation's loops after 65,535 iterations in all, its crossings' own loops included:
 /// walks were cut at 4,600-4,800 iterations where crossings were dense.
 pub const SOFTWARE_WALK_BUDGET: u32 = 1024;
+/// The budget below which a walk the adapter still cuts is an error.
+const MIN_WALK_BUDGET: u32 = 8;
 
 /// How the GPU estimates primary camera segments (`--gpu-primary`). Both give the CPU's
 /// sums; which is faster depends on the GPU and the scene (`ppb bench-gpu` times both).
@@ -280,6 +282,8 @@ pub struct GpuBeams {
     octree_nodes: wgpu::Buffer,
     octrees: wgpu::Buffer,
     seed: u64,
+    /// The walk budget each pass starts from (`Params::walk_budget`).
+    walk_budget: u32,
     accum: wgpu::Buffer,
     segments: Grow,
     pixel_first: Grow,
@@ -402,6 +406,7 @@ impl GpuBeams {
             octree_nodes,
             octrees,
             seed: opts.seed,
+            walk_budget: params.walk_budget,
             accum,
             pixels,
             in_flight: None,
@@ -521,22 +526,33 @@ impl GpuBeams {
         enc.clear_buffer(&self.seg_out.buf, 0, None);
         enc.clear_buffer(&self.walk_state.buf, 0, None);
         let rounds = self.params.walk_budget != u32::MAX && n_segs > 0;
+        let mut budget = self.params.walk_budget;
         loop {
             enc.clear_buffer(&self.unfinished, 0, None);
             self.dispatch(&mut enc, &bind, &self.per_segment, &seg_chunks, 0);
             if !rounds {
                 break;
             }
-            // A software adapter: run this round and go on while walks remain.
-            let left: Vec<u32> = read_back(&self.gpu, enc, &self.unfinished, 4, "walks left")?;
+            // A software adapter: run this round and go on while walks remain, with half
+            // the budget after a round in which the adapter cut some.
+            let left: Vec<u32> = read_back(&self.gpu, enc, &self.unfinished, 8, "walks left")?;
             enc = self
                 .gpu
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            if left[0] == 0 {
+            if left[1] > 0 {
+                budget /= 2;
+                if budget < MIN_WALK_BUDGET {
+                    return Err(self.loop_cut());
+                }
+                self.params.walk_budget = budget;
+                let bytes = bytemuck::bytes_of(&self.params);
+                self.gpu.queue.write_buffer(&self.params_buf, 0, bytes);
+            } else if left[0] == 0 {
                 break;
             }
         }
+        self.params.walk_budget = self.walk_budget;
         self.dispatch(
             &mut enc,
             &bind,
@@ -681,21 +697,26 @@ impl GpuBeams {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         let data: Vec<[f32; 4]> = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
         if data.iter().flatten().any(|&v| v < 0.0) {
-            let (w, h) = (self.camera.width(), self.camera.height());
-            let could_raster = PrimaryPath::Raster.resolve(&self.gpu, w, h).is_ok();
-            let raster = match self.path {
-                PrimaryPath::Gather if could_raster => "--gpu-primary raster, ",
-                _ => "",
-            };
-            return Err(Error::Gpu(format!(
-                "{} ended a shader loop before its work was done (Mesa's lavapipe and \
-                 llvmpipe stop loops after 65,535 iterations), so some beam sums are wrong; \
-                 use {raster}fewer light paths per pass or --device cpu",
-                self.gpu.describe()
-            )));
+            return Err(self.loop_cut());
         }
         self.check()?;
         Ok((data, timing))
+    }
+
+    /// The error for sums the adapter's loop limit made wrong.
+    fn loop_cut(&self) -> Error {
+        let (w, h) = (self.camera.width(), self.camera.height());
+        let could_raster = PrimaryPath::Raster.resolve(&self.gpu, w, h).is_ok();
+        let raster = match self.path {
+            PrimaryPath::Gather if could_raster => "--gpu-primary raster, ",
+            _ => "",
+        };
+        Error::Gpu(format!(
+            "{} ended a shader loop before its work was done (Mesa's lavapipe and llvmpipe \
+             stop loops after 65,535 iterations), so some beam sums are wrong; use \
+             {raster}fewer light paths per pass or --device cpu",
+            self.gpu.describe()
+        ))
     }
 
     /// Zeroes the accumulator (a new render, or a test that wants one pass).
