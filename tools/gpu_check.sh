@@ -69,9 +69,21 @@ step build cargo build --release
 step gpu-tests env PPB_REQUIRE_GPU=1 cargo test --release --test gpu
 
 SCENES=(scenes/conformance/smoke-grid/scene.toml scenes/bench/dense-smoke/scene.toml)
+# Runs per scene. The quick check leaves out the dense smoke with transmittance tracked on
+# the GPU: a fragment's ratio tracking through it exceeds a software adapter's loop limit
+# (lavapipe ends an invocation's loops after 65,535 iterations), which ppb reports as an
+# error rather than render wrong sums.
+runs_for() {
+  if [ "$QUICK" = 1 ] && [ "$1" = dense-smoke ]; then
+    echo gpu gpu-gather cpu
+  else
+    echo gpu gpu-gather gpu-track cpu
+  fi
+}
 for scene in "${SCENES[@]}"; do
   name=$(basename "$(dirname "$scene")")
-  for run in gpu gpu-gather gpu-track cpu; do
+  read -r -a RUNS <<<"$(runs_for "$name")"
+  for run in "${RUNS[@]}"; do
     case $run in
       gpu) device=(--device gpu --gpu-primary auto) ;;
       gpu-gather) device=(--device gpu --gpu-primary gather) ;;
@@ -82,7 +94,8 @@ for scene in "${SCENES[@]}"; do
       --size "$SIZE" --light-paths "$PATHS" --passes "$PASSES" --quiet \
       --stats "$OUT/paper-$name-$run.json" -o "$OUT/paper-$name-$run.exr"
   done
-  for run in gpu gpu-gather gpu-track; do
+  for run in "${RUNS[@]}"; do
+    [ "$run" = cpu ] && continue
     step "compare-$name-$run" "$PPB" compare "$OUT/paper-$name-$run.exr" "$OUT/paper-$name-cpu.exr"
   done
 done
@@ -113,6 +126,8 @@ for scene in scenes:
     ms = lambda r: 1e3 * r["seconds"]["total"] / max(r["passes"], 1)
     for run in ("gpu", "gpu-gather", "gpu-track"):
         g = runs[run]
+        if quick and name == "dense-smoke" and run == "gpu-track":
+            continue  # not run in the quick check (runs_for)
         if not g or not c:
             print(f"{name:<12} (missing stats: see {out}/paper-{name}-*.log)")
             ok = False

@@ -527,6 +527,8 @@ impl GpuBeams {
         enc.clear_buffer(&self.walk_state.buf, 0, None);
         let rounds = self.params.walk_budget != u32::MAX && n_segs > 0;
         let mut budget = self.params.walk_budget;
+        // Rounds run before the last submission: the estimate starts with the first.
+        let mut first_round: Option<Instant> = None;
         loop {
             enc.clear_buffer(&self.unfinished, 0, None);
             self.dispatch(&mut enc, &bind, &self.per_segment, &seg_chunks, 0);
@@ -535,6 +537,7 @@ impl GpuBeams {
             }
             // A software adapter: run this round and go on while walks remain, with half
             // the budget after a round in which the adapter cut some.
+            first_round.get_or_insert_with(Instant::now);
             let left: Vec<u32> = read_back(&self.gpu, enc, &self.unfinished, 8, "walks left")?;
             enc = self
                 .gpu
@@ -561,7 +564,7 @@ impl GpuBeams {
             seg_chunks.len(),
         );
         let index = self.gpu.queue.submit([enc.finish()]);
-        let submitted = Instant::now();
+        let submitted = first_round.unwrap_or_else(Instant::now);
         let device = self.gpu.device.clone();
         let poller = std::thread::spawn(move || {
             let _ = device.poll(wgpu::PollType::Wait {
