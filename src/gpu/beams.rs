@@ -25,7 +25,10 @@ use wgpu::util::DeviceExt;
 
 use super::freepath::{mode_word, octree_upload, storage_init};
 use super::layout::{media_params, BeamQuad, Chunk, Params, SegmentUpload};
-use super::{buffer_entry, compute_pipelines, read_back, Gpu, READ, READ_WRITE, UNIFORM};
+use super::{
+    buffer_entry, compute_pipelines, read_back, uniform_stride, uniform_table, Gpu, READ,
+    READ_WRITE, UNIFORM,
+};
 use crate::error::{Error, Result};
 use crate::estimate::splat::{reach_per_radius, Line};
 use crate::estimate::Estimator;
@@ -357,8 +360,7 @@ impl GpuBeams {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let chunk_stride = (gpu.limits.min_uniform_buffer_offset_alignment as u64)
-            .max(std::mem::size_of::<Chunk>() as u64);
+        let chunk_stride = uniform_stride::<Chunk>(&gpu);
         let chunk_buf = uniform_chunks(dev, 2 * chunk_stride);
         let accum = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("accum"),
@@ -501,15 +503,7 @@ impl GpuBeams {
         self.walk_state.reserve(&self.gpu, n_segs as u64 * 8)?;
         let seg_chunks = chunks(n_segs);
         let pixel_chunks = chunks(self.pixels);
-        let table: Vec<u8> = seg_chunks
-            .iter()
-            .chain(&pixel_chunks)
-            .flat_map(|c| {
-                let mut b = bytemuck::bytes_of(c).to_vec();
-                b.resize(self.chunk_stride as usize, 0);
-                b
-            })
-            .collect();
+        let table = uniform_table(seg_chunks.iter().chain(&pixel_chunks), self.chunk_stride);
         if table.len() as u64 > self.chunk_buf.size() {
             let size = (table.len() as u64).next_power_of_two();
             self.chunk_buf = uniform_chunks(&self.gpu.device, size);

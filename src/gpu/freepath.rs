@@ -9,7 +9,10 @@ use wgpu::util::DeviceExt;
 
 use super::beams::CHUNK;
 use super::layout::{media_params, MAX_GRIDS};
-use super::{buffer_entry, compute_pipelines, read_back, Gpu, READ, READ_WRITE, UNIFORM};
+use super::{
+    buffer_entry, compute_pipelines, read_back, uniform_stride, uniform_table, Gpu, READ,
+    READ_WRITE, UNIFORM,
+};
 use crate::error::{Error, Result};
 use crate::majorant::Node;
 use crate::media::Media;
@@ -164,8 +167,7 @@ impl GpuFreePaths {
         };
         let params_buf = uniform("params", bytemuck::bytes_of(&params));
         let octrees_buf = uniform("octrees", bytemuck::bytes_of(&octrees));
-        let job_stride = (gpu.limits.min_uniform_buffer_offset_alignment as u64)
-            .max(std::mem::size_of::<FpJob>() as u64);
+        let job_stride = uniform_stride::<FpJob>(&gpu);
         let g = GpuFreePaths {
             gpu,
             free_path,
@@ -292,14 +294,7 @@ impl GpuFreePaths {
                 grid,
             })
             .collect();
-        let table: Vec<u8> = jobs
-            .iter()
-            .flat_map(|j| {
-                let mut b = bytemuck::bytes_of(j).to_vec();
-                b.resize(self.job_stride as usize, 0);
-                b
-            })
-            .collect();
+        let table = uniform_table(&jobs, self.job_stride);
         let job_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("jobs"),
             contents: &table,

@@ -197,6 +197,26 @@ pub(crate) fn read_back<T: bytemuck::Pod>(
     Ok(data)
 }
 
+/// Bytes between entries of a uniform table of `T` read with dynamic offsets.
+pub(crate) fn uniform_stride<T>(gpu: &Gpu) -> u64 {
+    (gpu.limits.min_uniform_buffer_offset_alignment as u64).max(std::mem::size_of::<T>() as u64)
+}
+
+/// `items` laid out `stride` bytes apart, for a uniform read with dynamic offsets.
+pub(crate) fn uniform_table<'a, T: bytemuck::Pod>(
+    items: impl IntoIterator<Item = &'a T>,
+    stride: u64,
+) -> Vec<u8> {
+    items
+        .into_iter()
+        .flat_map(|item| {
+            let mut b = bytemuck::bytes_of(item).to_vec();
+            b.resize(stride as usize, 0);
+            b
+        })
+        .collect()
+}
+
 /// A buffer binding of a bind group layout, seen by `stages`.
 pub(crate) fn buffer_entry(
     binding: u32,
