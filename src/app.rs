@@ -49,8 +49,8 @@ pub struct Overrides {
     /// PNG (and window) exposure in stops (overrides [render].exposure).
     #[arg(long)]
     pub exposure: Option<f32>,
-    /// Grid free paths per camera segment per pass for the random and stratified estimators
-    /// (overrides [render].tr_samples; 1..=16, default 4).
+    /// Grid free paths (random, stratified) or ratio trackings averaged (ratio) per camera
+    /// segment per pass (overrides [render].tr_samples; 1..=16, default 4).
     #[arg(long, value_name = "M")]
     pub tr_samples: Option<usize>,
     /// Free-path sampler for light paths and camera transmittance (overrides

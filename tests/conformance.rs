@@ -316,18 +316,27 @@ fn cloud_hg_matches_reference() {
 }
 
 /// Switching the free-path sampler changes only the noise: adaptive and Woodcock renders
-/// of smoke-grid differ by no more than two independent renders of one sampler do.
+/// of smoke-grid differ by what their own noise predicts. Two renders of one sampler
+/// differ by sqrt(2) times its per-render error, renders of the two samplers by the
+/// root sum of squares of theirs (Woodcock's ratio tracking is noisier), so the cross
+/// difference must stay within 15 % of sqrt((noise_a^2 + noise_w^2) / 2).
 #[test]
 fn free_path_samplers_agree_within_noise() {
     let scene = "scenes/conformance/smoke-grid/scene.toml";
     let a1 = render_with(scene, 11, 48, 20_000, Mode::Adaptive);
     let a2 = render_with(scene, 12, 48, 20_000, Mode::Adaptive);
     let w1 = render_with(scene, 13, 48, 20_000, Mode::Woodcock);
-    let noise = compare(&a1, &a2, None).unwrap().rel_l1;
+    let w2 = render_with(scene, 14, 48, 20_000, Mode::Woodcock);
+    let noise_a = compare(&a1, &a2, None).unwrap().rel_l1;
+    let noise_w = compare(&w1, &w2, None).unwrap().rel_l1;
     let cross = compare(&a1, &w1, None).unwrap().rel_l1;
     let means = compare(&w1, &a1, None).unwrap();
-    eprintln!("adaptive vs adaptive {noise:.4}, adaptive vs woodcock {cross:.4}");
-    assert!(cross < 1.15 * noise, "{cross} vs {noise}");
+    let expected = ((noise_a * noise_a + noise_w * noise_w) / 2.0).sqrt();
+    eprintln!(
+        "adaptive vs adaptive {noise_a:.4}, woodcock vs woodcock {noise_w:.4}, \
+adaptive vs woodcock {cross:.4} (noise alone: {expected:.4})"
+    );
+    assert!(cross < 1.15 * expected, "{cross} vs {expected}");
     assert!((means.mean[0] / means.mean_ref[0] - 1.0).abs() < 0.01);
 }
 

@@ -433,7 +433,7 @@ impl CameraTracer<'_> {
         let (fp, m) = (&self.free_path, self.tr_samples);
         let (mut tick, mut secs) = (c.timing_ticks, c.transmittance_seconds);
         let tr = timed(&mut tick, &mut secs, || match (self.tr_mode, strat) {
-            (TrMode::Ratio, _) => SegmentTr::ratio(fp, ray, t_surf, rng, c),
+            (TrMode::Ratio, _) => SegmentTr::ratio(fp, ray, t_surf, m, rng, c),
             (TrMode::Stratified, Some(mut px)) => px.pick(fp, ray, t_surf, m, c),
             _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
         });
