@@ -30,6 +30,7 @@ use ppb::media::Media;
 use ppb::output::{self, ExrMeta, Image};
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::settings::{Method, RenderSettings};
+use ppb::transport::direct::MAX_NEE_SAMPLES;
 use ppb::transport::freepath::Mode;
 use ppb::transport::transmittance::{TrMode, MAX_TR_SAMPLES};
 use ppb::watch::octrees::{self, OctreeStore};
@@ -67,6 +68,11 @@ pub struct Overrides {
     /// multiple of --tr-samples). Memory: 4 N bytes per pixel (256 at N = 64).
     #[arg(long, value_name = "N")]
     pub tr_block: Option<usize>,
+    /// Light samples per camera segment in media for single scattering (hybrid method;
+    /// overrides [render].nee_samples; 1..=64, default 4). Their distances are stratified
+    /// along the segment.
+    #[arg(long, value_name = "K")]
+    pub nee_samples: Option<usize>,
     /// How light reaches the camera (overrides [render].method). The default, hybrid,
     /// reaches a given error sooner; ppb reproduces the paper's tables.
     #[arg(long, value_enum)]
@@ -95,6 +101,12 @@ impl Overrides {
                 anyhow::bail!("--tr-samples: expected 1..={MAX_TR_SAMPLES}, got {m}");
             }
             s.tr_samples = m;
+        }
+        if let Some(k) = self.nee_samples {
+            if !(1..=MAX_NEE_SAMPLES).contains(&k) {
+                anyhow::bail!("--nee-samples: expected 1..={MAX_NEE_SAMPLES}, got {k}");
+            }
+            s.nee_samples = k;
         }
         if let Some(f) = self.free_path {
             s.free_path = f;

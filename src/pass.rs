@@ -232,6 +232,7 @@ impl Tracer {
                 lights: &self.lights,
                 geometry: &self.geometry,
                 free_path,
+                samples: s.nee_samples,
             }),
         };
         let camera = ct.trace_pass(p.seed, p.index, strat);

@@ -37,6 +37,8 @@ pub struct RenderSettings {
     /// Depth of the majorant octree pyramid (2^depth finest cells per axis).
     pub octree_depth: u32,
     pub method: Method,
+    /// Light samples per camera segment in media (hybrid method's single scattering).
+    pub nee_samples: usize,
 }
 
 /// How light reaches the camera.
@@ -70,6 +72,7 @@ impl Default for RenderSettings {
             tr_block: crate::transport::transmittance::DEFAULT_TR_BLOCK,
             octree_depth: crate::majorant::octree::DEFAULT_MAX_DEPTH,
             method: Method::Hybrid,
+            nee_samples: crate::transport::direct::DEFAULT_NEE_SAMPLES,
         }
     }
 }

@@ -34,6 +34,7 @@ fn light_through_glass_reaches_the_floor_only_through_photons() {
         lights: &lights,
         geometry: &geometry,
         free_path,
+        samples: 1,
     };
     // (0, 0, 0) is in the shadow of the glass sphere (centre (0, 1, 0), radius 0.5) for
     // every point of the light (centre (0, 2.4, 0), radius 0.05); (1.5, 0, 0) is not.

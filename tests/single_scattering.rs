@@ -14,7 +14,7 @@ use ppb::media::homogeneous::ray_box;
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::sampling::Rng;
 use ppb::scene::{Light, Scene};
-use ppb::transport::direct::Direct;
+use ppb::transport::direct::{Direct, DEFAULT_NEE_SAMPLES};
 use ppb::transport::freepath::{FreePath, Mode};
 use ppb::transport::light::{LightSampler, LightTracer};
 use ppb::transport::Counters;
@@ -304,9 +304,11 @@ fn directional_light_through_a_face() {
     check("directional", light, 60, 40_000);
 }
 
-/// Next-event estimation alone (the hybrid method's direct half, `Direct::along`) along
-/// the same view ray: mean and standard error over `n` independent estimates.
-fn nee(light: Light, n: usize) -> (f64, f64) {
+/// Next-event estimation alone (the hybrid method's direct half, `Direct::along`, with
+/// `samples` stratified light samples) along the same view ray: mean, standard error,
+/// variance and the variance's standard error (from the fourth central moment) over `n`
+/// independent estimates.
+fn nee(light: Light, n: usize, samples: usize) -> (f64, f64, f64, f64) {
     let medium = MediumDesc {
         bounds: bounds(),
         sigma_t: SIGMA_T,
@@ -329,6 +331,7 @@ fn nee(light: Light, n: usize) -> (f64, f64) {
             media: &media,
             mode: Mode::Woodcock,
         },
+        samples,
     };
     let mut rng = Rng::new(17, 3);
     let mut c = Counters::default();
@@ -341,12 +344,16 @@ fn nee(light: Light, n: usize) -> (f64, f64) {
         .collect();
     let mean = v.iter().sum::<f64>() / n as f64;
     let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-    (mean, (var / n as f64).sqrt())
+    let m4 = v.iter().map(|x| (x - mean).powi(4)).sum::<f64>() / n as f64;
+    let var_se = ((m4 - var * var).max(0.0) / n as f64).sqrt();
+    (mean, (var / n as f64).sqrt(), var, var_se)
 }
 
 /// NEE alone equals the single-scattering quadrature for every kind of light (no kernel:
-/// the bound is 4 standard errors plus 0.2 % for the quadrature of the sphere's cone), and
-/// the test resolves 1 %.
+/// the bound is 4 standard errors plus 0.2 % for the quadrature of the sphere's cone), with
+/// one light sample per segment and with the default's stratified samples, and the test
+/// resolves 1 %. Stratification must also pay: k stratified samples have at most the
+/// variance of k independent ones, var_1 / k (plus 5 standard errors of the variances).
 #[test]
 fn next_event_estimation_matches_quadrature() {
     let lights = [
@@ -383,15 +390,29 @@ fn next_event_estimation_matches_quadrature() {
             },
         ),
     ];
+    let k = DEFAULT_NEE_SAMPLES;
     for (name, light) in lights {
         let quad = quadrature(&light);
-        let (mean, se) = nee(light, 200_000);
-        eprintln!(
-            "NEE {name}: {mean:.5e} +- {se:.1e}, quadrature {quad:.5e}, ratio {:.4}",
-            mean / quad
+        let mut vars = Vec::new();
+        for (samples, n) in [(1, 200_000), (k, 50_000)] {
+            let (mean, se, var, var_se) = nee(light, n, samples);
+            eprintln!(
+                "NEE {name}, {samples} samples: {mean:.5e} +- {se:.1e}, quadrature {quad:.5e}, \
+                 ratio {:.4}, variance {var:.3e}",
+                mean / quad
+            );
+            let bound = 4.0 * se + 0.002 * quad;
+            assert!((mean - quad).abs() < bound, "{name}: {mean} vs {quad}");
+            assert!(bound < 0.01 * quad, "{name}: test too weak: bound {bound}");
+            vars.push((var, var_se));
+        }
+        let [(v1, se1), (vk, sek)] = vars[..] else {
+            unreachable!()
+        };
+        let slack = 5.0 * (se1 / k as f64).hypot(sek);
+        assert!(
+            vk <= v1 / k as f64 + slack,
+            "{name}: variance {vk:.3e} with {k} samples, {v1:.3e} with 1"
         );
-        let bound = 4.0 * se + 0.002 * quad;
-        assert!((mean - quad).abs() < bound, "{name}: {mean} vs {quad}");
-        assert!(bound < 0.01 * quad, "{name}: test too weak: bound {bound}");
     }
 }

@@ -13,6 +13,7 @@ use crate::farm::frames;
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc};
 use crate::settings::{Radius, RenderSettings};
+use crate::transport::direct::MAX_NEE_SAMPLES;
 use crate::transport::transmittance::{MAX_TR_BLOCK, MAX_TR_SAMPLES};
 use clap::ValueEnum;
 use glam::DAffine3;
@@ -56,6 +57,7 @@ struct FileRender {
     tr_block: Option<usize>,
     free_path: Option<String>,
     method: Option<String>,
+    nee_samples: Option<usize>,
 }
 
 #[derive(Deserialize)]
@@ -540,6 +542,7 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         seed: r.seed.unwrap_or(d.seed),
         exposure: r.exposure.unwrap_or(d.exposure),
         tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
+        nee_samples: r.nee_samples.unwrap_or(d.nee_samples),
         tr_block: r.tr_block.unwrap_or(d.tr_block),
         tr_mode: ck.word(
             "render.transmittance",
@@ -566,6 +569,12 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         return Err(ck.err(
             "render.tr_samples",
             format!("expected 1..={MAX_TR_SAMPLES}, got {}", s.tr_samples),
+        ));
+    }
+    if !(1..=MAX_NEE_SAMPLES).contains(&s.nee_samples) {
+        return Err(ck.err(
+            "render.nee_samples",
+            format!("expected 1..={MAX_NEE_SAMPLES}, got {}", s.nee_samples),
         ));
     }
     if let Some((field, msg)) = s.limits_error() {
