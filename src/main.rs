@@ -25,7 +25,7 @@ enum Command {
     #[command(
         long_about = "Render a TOML scene file progressively and write an EXR (float32 linear \
 RGB, with passes, seconds and settings in the header) and a PNG preview beside it.\n\n\
-Radii: `beam_radius = \"auto\"` sets R1 to 1.5 pixel footprints at the distance from the camera to \
+Radii: `beam_radius = \"auto\"` sets R1 to 2 pixel footprints at the distance from the camera to \
 the centre of the media's bounds; `photon_radius = \"auto\"` sets R1 to 3 pixel footprints at the \
 distance to the centre of the surfaces' bounds. Both then shrink every pass by eq. 3 \
 (beam radius, and photon radius squared, times (i + alpha) / (i + 1)).",
