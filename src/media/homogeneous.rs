@@ -105,22 +105,19 @@ impl Media {
     /// The constant-extinction pieces of the ray inside any homogeneous medium, front to
     /// back.
     pub fn pieces(&self, ray: &Ray, tmax: f32) -> Pieces {
-        let mut out = Pieces::new();
         // One box (a scene's fog): its span is the only piece, no cuts to sort. Every
         // light-path free path asks, so this is a share of free-path time.
-        if let [m] = &self.media[..] {
+        let [m] = &self.media[..] else {
+            return self.swept_pieces(ray, tmax);
+        };
+        let mut out = Pieces::new();
+        if m.sigma_t > 0.0 {
             if let Some((t0, t1)) = ray_box(ray, &m.bounds, 0.0, tmax) {
-                if m.sigma_t > 0.0 {
-                    out.push(Piece {
-                        t0,
-                        t1,
-                        sigma_t: m.sigma_t,
-                    });
-                }
+                let sigma_t = m.sigma_t;
+                out.push(Piece { t0, t1, sigma_t });
             }
-            return out;
         }
-        self.swept_pieces(ray, tmax)
+        out
     }
 
     /// [`Self::pieces`] for any number of boxes: a sweep over their sorted entry and exit
