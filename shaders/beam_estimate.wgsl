@@ -140,12 +140,10 @@ fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     return out;
 }
 
+// Whether the walk enters node `n`: the slab test, a box the segment only touches included.
 fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
-    let a = (n.min - o) * inv;
-    let b = (n.max - o) * inv;
-    let near = max(max(max(min(a.x, b.x), min(a.y, b.y)), min(a.z, b.z)), t0);
-    let far = min(min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z)), t1);
-    return near <= far;
+    let s = slab(o, inv, n.min, n.max, t0, t1);
+    return s.x <= s.y;
 }
 
 // Stackless walk of the pre-ordered BVH, one node or one piece per iteration (a flat loop:

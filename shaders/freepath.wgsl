@@ -141,10 +141,9 @@ fn walk_begin(gi: u32, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> Walk {
         w.lo = root.min;
         w.hi = root.max;
     }
-    let a = (w.lo - o) * w.inv;
-    let b = (w.hi - o) * w.inv;
-    w.t = max(fp_max3(min(a, b)), 0.0);
-    w.t1 = min(fp_min3(max(a, b)), tmax);
+    let s = slab(o, w.inv, w.lo, w.hi, 0.0, tmax);
+    w.t = s.x;
+    w.t1 = s.y;
     w.done = !(w.t < w.t1);
     w.node = w.base;
     w.descending = false;

@@ -69,17 +69,25 @@ fn inside(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> bool {
     return all(p >= lo) && all(p <= hi);
 }
 
+// The 1/d rule of `core::Ray::inv_d`: a component under MIN_DIR in magnitude becomes MIN_DIR.
 fn safe_inv(d: vec3<f32>) -> vec3<f32> {
     return 1.0 / select(d, vec3<f32>(1e-30), abs(d) < vec3<f32>(1e-30));
 }
 
-// Length of [t0, t1] inside the box (0 when they miss), as `media::ray_box`.
-fn box_overlap(o: vec3<f32>, inv: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t0: f32, t1: f32) -> f32 {
+// (near, far) of the ray (o, inv = safe_inv(d)) in the box [lo, hi], clipped to [t0, t1]:
+// `core::slab`, the one slab test (empty when near >= far).
+fn slab(o: vec3<f32>, inv: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t0: f32, t1: f32) -> vec2<f32> {
     let a = (lo - o) * inv;
     let b = (hi - o) * inv;
     let near = max(max(max(min(a.x, b.x), min(a.y, b.y)), min(a.z, b.z)), t0);
     let far = min(min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z)), t1);
-    return select(0.0, far - near, near < far);
+    return vec2<f32>(near, far);
+}
+
+// Length of [t0, t1] inside the box (0 when they miss), as `core::ray_box`.
+fn box_overlap(o: vec3<f32>, inv: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t0: f32, t1: f32) -> f32 {
+    let s = slab(o, inv, lo, hi, t0, t1);
+    return select(0.0, s.y - s.x, s.x < s.y);
 }
 
 fn voxel(gi: u32, ijk: vec3<i32>) -> f32 {

@@ -1,10 +1,17 @@
 //! The command line: arguments, progress, status lines and outputs. Every command that
 //! renders drives a [`ppb::session::Session`]; this module only configures it.
 mod bench;
+mod bench_gpu;
 mod bench_size;
+mod bench_tr;
+mod build;
+mod compare;
 mod farm;
 mod info;
 mod isolate;
+mod live;
+mod merge;
+mod plan;
 mod progress;
 mod render;
 mod watch;
@@ -13,27 +20,30 @@ mod window;
 use anyhow::{Context, Result};
 use clap::Args;
 use std::path::{Path, PathBuf};
-use std::process::ExitCode;
 
-pub use bench::{bench, bench_gpu, bench_tr, BenchGpuArgs, BenchTableArgs, BenchTrArgs};
+pub use bench::{bench, BenchTableArgs};
+pub use bench_gpu::{bench_gpu, BenchGpuArgs};
 pub use bench_size::{bench_size, BenchSizeArgs};
-pub use farm::{farm, merge, plan, FarmArgs, MergeArgs, PlanArgs};
-pub use info::{compare, info, CompareArgs};
+pub use bench_tr::{bench_tr, BenchTrArgs};
+pub use build::{build, BuildArgs};
+pub use compare::{compare, CompareArgs};
+pub use farm::{farm, FarmArgs};
+pub use info::info;
 pub use isolate::{probe_in_child, usd_probe};
+pub use merge::{merge, MergeArgs};
+pub use plan::{plan, PlanArgs};
 pub use render::{render, RenderArgs};
 pub use watch::{watch, WatchArgs};
 
 use ppb::gpu::beams::{CameraTr, PrimaryPath};
 use ppb::gpu::{DeviceKind, Gpu};
-use ppb::majorant::cache;
+use ppb::majorant::Mode;
+use ppb::media::octrees::{self, OctreeStore};
 use ppb::media::Media;
 use ppb::output::{self, ExrMeta, Image};
 use ppb::scene::toml::{self as scene_toml, SceneFile};
+use ppb::settings::TrMode;
 use ppb::settings::{Method, RenderSettings};
-use ppb::transport::direct::MAX_NEE_SAMPLES;
-use ppb::transport::freepath::Mode;
-use ppb::transport::transmittance::{TrMode, MAX_TR_SAMPLES};
-use ppb::watch::octrees::{self, OctreeStore};
 
 /// Command-line overrides of a scene's `[render]` settings, shared by every command that
 /// renders and applied in one place ([`Overrides::apply`]).
@@ -97,15 +107,9 @@ impl Overrides {
             s.exposure = e;
         }
         if let Some(m) = self.tr_samples {
-            if !(1..=MAX_TR_SAMPLES).contains(&m) {
-                anyhow::bail!("--tr-samples: expected 1..={MAX_TR_SAMPLES}, got {m}");
-            }
             s.tr_samples = m;
         }
         if let Some(k) = self.nee_samples {
-            if !(1..=MAX_NEE_SAMPLES).contains(&k) {
-                anyhow::bail!("--nee-samples: expected 1..={MAX_NEE_SAMPLES}, got {k}");
-            }
             s.nee_samples = k;
         }
         if let Some(f) = self.free_path {
@@ -120,13 +124,15 @@ impl Overrides {
         if let Some(m) = self.method {
             s.method = m;
         }
-        if let Some((field, msg)) = s.limits_error() {
-            let flag = if field == "light_paths" {
-                "--light-paths"
-            } else {
-                "--size"
+        if let Err(e) = s.validate() {
+            let flag = match e.field {
+                "width" | "height" => "--size".to_string(),
+                f @ ("light_paths" | "tr_samples" | "nee_samples" | "tr_block" | "exposure") => {
+                    format!("--{}", f.replace('_', "-"))
+                }
+                f => format!("[render].{f}"),
             };
-            anyhow::bail!("{flag}: {msg}");
+            anyhow::bail!("{flag}: {}", e.msg);
         }
         Ok(s)
     }
@@ -295,18 +301,6 @@ pub fn open_device(kind: DeviceKind, quiet: bool) -> Result<Option<Gpu>> {
     Ok(gpu)
 }
 
-#[derive(Args)]
-pub struct BuildArgs {
-    /// Scene file (.toml).
-    pub scene: PathBuf,
-    /// Cache folder (default: .ppb-cache/ beside the scene).
-    #[arg(long)]
-    pub cache_dir: Option<PathBuf>,
-    /// Only report whether each medium's cached octree is fresh; exit 1 if any is stale.
-    #[arg(long)]
-    pub check: bool,
-}
-
 fn cache_dir_for(scene: &Path, over: Option<&PathBuf>) -> PathBuf {
     over.cloned().unwrap_or_else(|| {
         scene
@@ -320,38 +314,19 @@ fn cache_dir_for(scene: &Path, over: Option<&PathBuf>) -> PathBuf {
 /// The scene's media, every grid with its octree loaded from a valid cache in `dir`, else
 /// built and stored. One line per grid medium says which (unless quiet).
 fn cached_media(file: &SceneFile, depth: u32, dir: &Path, quiet: bool) -> Result<Media> {
-    let media = OctreeStore::new().media(&file.scene, depth, dir, |i, g, origin| {
-        if !quiet {
-            eprintln!("{}", octrees::describe(i, g, origin));
-        }
-    })?;
+    let scene = &file.scene;
+    let media = OctreeStore::new().media(
+        &scene.media,
+        &scene.grid_media,
+        depth,
+        Some(dir),
+        |i, g, origin| {
+            if !quiet {
+                eprintln!("{}", octrees::describe(i, g, origin));
+            }
+        },
+    )?;
     Ok(media)
-}
-
-pub fn build(args: BuildArgs) -> Result<ExitCode> {
-    let file = load_scene(&args.scene)?;
-    let depth = file.settings.octree_depth;
-    let dir = cache_dir_for(&args.scene, args.cache_dir.as_ref());
-    if args.check {
-        let mut stale = false;
-        for (i, g) in file.scene.grid_media.iter().enumerate() {
-            let (status, _) = cache::load(&dir, g, depth);
-            let word = match &status {
-                cache::Status::Fresh => "fresh".to_string(),
-                cache::Status::Missing => "stale (no cache)".to_string(),
-                cache::Status::Invalid(w) => format!("stale ({w})"),
-            };
-            stale |= status != cache::Status::Fresh;
-            println!("medium {i} ({}): {word}", g.source);
-        }
-        return Ok(if stale {
-            ExitCode::from(1)
-        } else {
-            ExitCode::SUCCESS
-        });
-    }
-    cached_media(&file, depth, &dir, false)?;
-    Ok(ExitCode::SUCCESS)
 }
 
 fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {

@@ -2,8 +2,9 @@
 //! (exact unpolarised Fresnel, total internal reflection) and mirror.
 use glam::{Vec2, Vec3};
 
+use crate::core::Rgb;
 use crate::sampling::cosine_hemisphere;
-use crate::scene::{Material, Rgb};
+use crate::scene::Material;
 
 /// Unpolarised Fresnel reflectance for cosine `cos_i` (> 0) on the incident side and
 /// relative index `eta` = n_transmitted / n_incident. Returns 1 on total internal reflection.

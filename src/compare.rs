@@ -1,9 +1,9 @@
 //! Image metrics used by `ppb compare` and the conformance tests:
 //! rel_l1 = sum|x - ref| / sum|ref| over all pixels and channels (SPEC.md),
 //! rel_rmse = sqrt(mean (x - ref)^2) / mean |ref|.
+use crate::core::Rgb;
 use crate::error::{Error, Result};
 use crate::output::Image;
-use crate::scene::Rgb;
 
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Metrics {

@@ -5,7 +5,7 @@
 //! 2^-[`FRACTION_BITS`], and integer addition is associative. So the sums of passes
 //! 1..=8 are the same bits whether one process adds them in order or shards add 1..=4
 //! and 5..=8 and a merge adds the two sums ([`Film::merge`]): farm renders merge exactly.
-use crate::scene::Rgb;
+use crate::core::Rgb;
 
 /// Fraction bits of the fixed-point sums: a resolution of 3.6e-15, and room for sums up
 /// to 2^79 (6e23) in an i128.

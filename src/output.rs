@@ -1,10 +1,11 @@
 //! Image files: EXR (float32 linear R, G, B plus render metadata as header attributes) and
 //! PNG previews (exposure, clamp, sRGB). Both are written to a temporary file in the target
 //! folder and renamed into place, so a reader never sees a partial image.
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use exr::prelude::*;
 
+use crate::core::fs::write_atomic;
 use crate::error::{Error, Result};
 
 /// A linear RGB image, row-major, top row first.
@@ -13,54 +14,6 @@ pub struct Image {
     pub width: usize,
     pub height: usize,
     pub pixels: Vec<[f32; 3]>,
-}
-
-fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
-}
-
-/// How old a temp file of [`write_atomic`] must be before [`sweep_temps`] removes it: no
-/// write takes this long, so its writer was killed (or its machine died).
-pub const STALE_TEMP: std::time::Duration = std::time::Duration::from_secs(3600);
-
-/// Removes the temp files killed writers left in `dir` (older than `age`); another
-/// process's write in flight is younger and is left alone. Best effort.
-pub fn sweep_temps(dir: &Path, age: std::time::Duration) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let now = std::time::SystemTime::now();
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let name = name.to_string_lossy();
-        if !(name.starts_with('.') && name.ends_with(".tmp")) {
-            continue;
-        }
-        let old = e
-            .metadata()
-            .and_then(|m| m.modified())
-            .is_ok_and(|t| now.duration_since(t).is_ok_and(|d| d >= age));
-        if old {
-            let _ = std::fs::remove_file(e.path());
-        }
-    }
-}
-
-/// Writes via `write` into a temp file beside `path`, then renames it over `path`.
-pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let tmp = temp_path(path);
-    if let Err(e) = write(&tmp) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
-    })
 }
 
 /// An EXR header besides the pixels: OpenEXR's standard attributes where one exists,
@@ -247,13 +200,24 @@ fn srgb_encode(x: f32) -> u8 {
     (s * 255.0 + 0.5) as u8
 }
 
-/// PNG preview: linear * 2^exposure, clamped, sRGB-encoded, 8 bit.
-pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<()> {
+/// The one tone map of every preview (the PNG and `ppb watch`'s window): linear radiance
+/// times 2^exposure, clamped to [0, 1], sRGB-encoded to 8 bits; RGBA with alpha 255.
+pub fn tone_map(pixels: &[[f32; 3]], exposure: f32) -> Vec<[u8; 4]> {
     let scale = 2f32.powf(exposure);
-    let bytes: Vec<u8> = img
-        .pixels
+    pixels
         .iter()
-        .flat_map(|p| p.map(|c| srgb_encode(c * scale)))
+        .map(|p| {
+            let [r, g, b] = p.map(|c| srgb_encode(c * scale));
+            [r, g, b, 255]
+        })
+        .collect()
+}
+
+/// PNG preview: the [`tone_map`] of the image, 8-bit RGB.
+pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<()> {
+    let bytes: Vec<u8> = tone_map(&img.pixels, exposure)
+        .into_iter()
+        .flat_map(|[r, g, b, _]| [r, g, b])
         .collect();
     write_atomic(path, |tmp| {
         let file = std::fs::File::create(tmp).map_err(|e| Error::io(tmp, e))?;
@@ -279,6 +243,7 @@ pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::fs::{sweep_temps, STALE_TEMP};
 
     #[test]
     fn exr_round_trip_and_atomic_failure() {

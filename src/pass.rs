@@ -6,22 +6,23 @@
 use glam::Vec3;
 use std::time::Instant;
 
+use crate::core::ray_box;
+use crate::core::Rgb;
 use crate::error::{Error, Result};
-use crate::estimate::{beams::BeamMap, cpu, photons::Photons};
+use crate::estimate::{beams::BeamMap, cpu, photons::Photons, Timings, TracedPass, View};
 use crate::geometry::Geometry;
-use crate::media::homogeneous::ray_box;
 use crate::media::Media;
 use crate::plan::{PassPlan, Plan};
-use crate::scene::{Rgb, Scene};
+use crate::scene::Scene;
+use crate::settings::TrMode;
 use crate::settings::{
     Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS, SMOOTH_PHOTON_SCALE,
 };
-use crate::transport::camera::{CameraPass, CameraTracer, Pinhole};
+use crate::transport::camera::{CameraTracer, Pinhole};
 use crate::transport::direct::Direct;
 use crate::transport::freepath::FreePath;
 use crate::transport::light::{LightSampler, LightTracer};
-use crate::transport::transmittance::{StratStore, TrMode, MAX_TR_BLOCK};
-use crate::transport::{Beam, Counters};
+use crate::transport::transmittance::StratStore;
 use rayon::prelude::*;
 
 pub struct Tracer {
@@ -38,42 +39,6 @@ pub struct Tracer {
     /// Whether camera paths can continue past a surface (then later camera segments need
     /// the beam BVH).
     has_specular: bool,
-}
-
-/// Wall-clock seconds of one pass's stages.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
-pub struct Timings {
-    pub light_tracing: f64,
-    pub build_maps: f64,
-    pub camera_paths: f64,
-    /// The beam estimate on the CPU (0 when the GPU does it).
-    pub beam_estimate: f64,
-}
-
-impl Timings {
-    pub fn add(&mut self, o: &Timings) {
-        self.light_tracing += o.light_tracing;
-        self.build_maps += o.build_maps;
-        self.camera_paths += o.camera_paths;
-        self.beam_estimate += o.beam_estimate;
-    }
-
-    pub fn total(&self) -> f64 {
-        self.light_tracing + self.build_maps + self.camera_paths + self.beam_estimate
-    }
-}
-
-/// A pass traced up to the beam estimate: everything the estimate reads.
-pub struct TracedPass {
-    /// 1-based pass number.
-    pub index: u32,
-    pub camera: CameraPass,
-    pub beams: Vec<Beam>,
-    /// The beam BVH (built when the camera can reach a specular surface, or on request).
-    pub beam_map: Option<BeamMap>,
-    pub beam_radius: f32,
-    pub counters: Counters,
-    pub timings: Timings,
 }
 
 impl Tracer {
@@ -119,15 +84,9 @@ impl Tracer {
             .materials
             .iter()
             .any(|m| !matches!(m.material, crate::scene::Material::Lambert { .. }));
-        if settings.tr_block == 0
-            || settings.tr_block > MAX_TR_BLOCK
-            || !settings.tr_block.is_multiple_of(settings.tr_samples)
-        {
-            return Err(Error::Other(format!(
-                "tr_block must be a multiple of tr_samples ({}) in 1..={MAX_TR_BLOCK}, got {}",
-                settings.tr_samples, settings.tr_block
-            )));
-        }
+        settings
+            .validate()
+            .map_err(|e| Error::Other(format!("render settings: {e}")))?;
         Ok(Tracer {
             has_specular,
             settings,
@@ -255,17 +214,17 @@ impl Tracer {
         }
     }
 
-    /// The beam estimate of a traced pass on the CPU alone (without the camera paths'
-    /// photon estimate), with its count of beam evaluations.
+    /// The beam estimate of a traced pass on the CPU alone (see [`cpu::beam_image`]).
     pub fn beam_image(&self, t: &TracedPass) -> (Vec<Rgb>, u64) {
-        cpu::beam_image(
-            &self.camera,
-            &self.media,
-            &t.camera,
-            &t.beams,
-            t.beam_map.as_ref(),
-            t.beam_radius,
-        )
+        cpu::beam_image(self.view(), t)
+    }
+
+    /// What the beam estimate of any pass reads besides the pass.
+    pub fn view(&self) -> View<'_> {
+        View {
+            camera: &self.camera,
+            media: &self.media,
+        }
     }
 
     pub fn camera(&self) -> &Pinhole {

@@ -9,21 +9,38 @@
 use std::time::Instant;
 
 use crate::error::{Error, Result};
+use crate::estimate::Timings;
 use crate::estimate::{cpu::CpuBeams, Estimator};
 use crate::film::Film;
 use crate::gpu::beams::{CameraTr, GpuBeams, GpuOptions, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
 use crate::output::Image;
-use crate::pass::{Timings, Tracer};
+use crate::pass::Tracer;
 use crate::plan::{ramp_paths, PassPlan, Plan, Ramp};
 use crate::transport::transmittance::StratStore;
 use crate::transport::Counters;
+
+/// Where the beam estimate runs: the GPU's estimator is kept by its type, so its
+/// statistics need no place on the [`Estimator`] trait.
+enum Beams {
+    Gpu(Box<GpuBeams>),
+    Other(Box<dyn Estimator>),
+}
+
+impl Beams {
+    fn get(&mut self) -> &mut dyn Estimator {
+        match self {
+            Beams::Gpu(g) => g.as_mut(),
+            Beams::Other(e) => e.as_mut(),
+        }
+    }
+}
 
 pub struct Session {
     tracer: Tracer,
     plan: Plan,
     ramp: Ramp,
-    estimator: Box<dyn Estimator>,
+    beams: Beams,
     film: Film,
     /// The stratified transmittance's free paths of the current block.
     strat: Option<StratStore>,
@@ -51,12 +68,16 @@ pub struct PassDone {
 impl Session {
     /// A session estimating beams with `estimator`.
     pub fn new(tracer: Tracer, estimator: Box<dyn Estimator>) -> Self {
+        Self::with_beams(tracer, Beams::Other(estimator))
+    }
+
+    fn with_beams(tracer: Tracer, beams: Beams) -> Self {
         let (w, h) = (tracer.settings.width, tracer.settings.height);
         Session {
             plan: tracer.plan(),
             strat: tracer.strat_store(),
             ramp: Ramp::Off,
-            estimator,
+            beams,
             film: Film::new(w, h),
             counters: Counters::default(),
             timings: Timings::default(),
@@ -73,14 +94,19 @@ impl Session {
         primary: PrimaryPath,
         camera_tr: CameraTr,
     ) -> Result<Self> {
-        let estimator: Box<dyn Estimator> = match gpu {
+        let beams = match gpu {
             Some(g) => {
                 let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
-                Box::new(GpuBeams::new(g, tracer.media(), tracer.camera(), opts)?)
+                Beams::Gpu(Box::new(GpuBeams::new(
+                    g,
+                    tracer.media(),
+                    tracer.camera(),
+                    opts,
+                )?))
             }
-            None => Box::new(CpuBeams),
+            None => Beams::Other(Box::new(CpuBeams)),
         };
-        Ok(Session::new(tracer, estimator))
+        Ok(Session::with_beams(tracer, beams))
     }
 
     /// A session on the CPU.
@@ -109,24 +135,32 @@ impl Session {
 
     /// "cpu", or the GPU adapter.
     pub fn device(&self) -> String {
-        self.estimator.describe()
+        match &self.beams {
+            Beams::Gpu(g) => g.describe(),
+            Beams::Other(e) => e.describe(),
+        }
     }
 
+    /// How the GPU estimate overlapped tracing, when the GPU estimates.
     pub fn gpu_stats(&self) -> Option<GpuStats> {
-        self.estimator.gpu_stats()
+        match &self.beams {
+            Beams::Gpu(g) => Some(g.stats().clone()),
+            Beams::Other(_) => None,
+        }
     }
 
     /// Adds pass `p` to the film: traced on the CPU, estimated by the estimator (on the
     /// GPU, still running when this returns).
     pub fn pass(&mut self, p: &PassPlan) -> Result<()> {
         let t0 = Instant::now();
-        let beam_map = self.estimator.needs_beam_map();
+        let beam_map = self.beams.get().needs_beam_map();
         let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
         let t1 = Instant::now();
         self.film.add_pass(&traced.camera.image);
-        let evals = self
-            .estimator
-            .estimate(&self.tracer, &traced, &mut self.film, (t0, t1))?;
+        let evals =
+            self.beams
+                .get()
+                .estimate(self.tracer.view(), &traced, &mut self.film, (t0, t1))?;
         self.counters.add(&traced.counters);
         self.counters.beam_evaluations += evals;
         self.timings.add(&traced.timings);
@@ -179,7 +213,7 @@ impl Session {
 
     /// The current image: the mean over passes (reads the GPU's sums back).
     pub fn image(&mut self) -> Result<Image> {
-        let pixels = match self.estimator.held()? {
+        let pixels = match self.beams.get().held()? {
             None => self.film.image(),
             Some(acc) => self.film.image_plus(&acc),
         };
@@ -194,7 +228,7 @@ impl Session {
     /// passes so far added, to store in a part file.
     pub fn film(&mut self) -> Result<Film> {
         let mut film = self.film.clone();
-        if let Some(acc) = self.estimator.held()? {
+        if let Some(acc) = self.beams.get().held()? {
             film.absorb(&acc);
         }
         Ok(film)
@@ -209,7 +243,7 @@ impl Session {
 
     /// Empties the film and the estimator's sums; the next pass starts a new average.
     pub fn restart(&mut self) -> Result<()> {
-        self.estimator.clear()?;
+        self.beams.get().clear()?;
         self.film = Film::new(self.film.width, self.film.height);
         self.last = None;
         Ok(())

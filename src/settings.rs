@@ -29,9 +29,9 @@ pub struct RenderSettings {
     pub exposure: f32,
     /// Grid free paths per camera segment per pass (M of the deep-shadow estimate).
     pub tr_samples: usize,
-    pub free_path: crate::transport::freepath::Mode,
+    pub free_path: crate::majorant::Mode,
     /// Camera-segment transmittance estimator through grids.
-    pub tr_mode: crate::transport::transmittance::TrMode,
+    pub tr_mode: TrMode,
     /// Passes whose free paths the stratified estimator draws at once (N).
     pub tr_block: usize,
     /// Depth of the majorant octree pyramid (2^depth finest cells per axis).
@@ -66,13 +66,13 @@ impl Default for RenderSettings {
             smooth_photon_radius: Radius::Auto,
             seed: 1,
             exposure: 0.0,
-            tr_samples: crate::transport::transmittance::DEFAULT_TR_SAMPLES,
-            free_path: crate::transport::freepath::Mode::Adaptive,
-            tr_mode: crate::transport::transmittance::TrMode::Ratio,
-            tr_block: crate::transport::transmittance::DEFAULT_TR_BLOCK,
-            octree_depth: crate::majorant::octree::DEFAULT_MAX_DEPTH,
+            tr_samples: DEFAULT_TR_SAMPLES,
+            free_path: crate::majorant::Mode::Adaptive,
+            tr_mode: TrMode::Ratio,
+            tr_block: DEFAULT_TR_BLOCK,
+            octree_depth: crate::majorant::DEFAULT_MAX_DEPTH,
             method: Method::Hybrid,
-            nee_samples: crate::transport::direct::DEFAULT_NEE_SAMPLES,
+            nee_samples: DEFAULT_NEE_SAMPLES,
         }
     }
 }
@@ -85,10 +85,68 @@ pub const MAX_SIDE: u32 = 16384;
 pub const MAX_PIXELS: u64 = 1 << 26;
 pub const MAX_LIGHT_PATHS: usize = 1 << 24;
 
+/// A setting out of its range: its name in the `[render]` table and what was expected.
+/// Each reader names the place it came from (`render.tr_block` in a scene, `--tr-block`
+/// on the command line).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{field}: {msg}")]
+pub struct Invalid {
+    pub field: &'static str,
+    pub msg: String,
+}
+
 impl RenderSettings {
+    /// The one check of every range: the scene reader, the command-line overrides and
+    /// the tracer all ask it.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        let bad = |field, msg| Err(Invalid { field, msg });
+        if let Some((field, msg)) = self.limits_error() {
+            return bad(field, msg);
+        }
+        if !(1..=MAX_TR_SAMPLES).contains(&self.tr_samples) {
+            let msg = format!("expected 1..={MAX_TR_SAMPLES}, got {}", self.tr_samples);
+            return bad("tr_samples", msg);
+        }
+        if self.tr_block == 0
+            || self.tr_block > MAX_TR_BLOCK
+            || !self.tr_block.is_multiple_of(self.tr_samples)
+        {
+            let msg = format!(
+                "expected a multiple of tr_samples ({}) in 1..={MAX_TR_BLOCK}, got {}",
+                self.tr_samples, self.tr_block
+            );
+            return bad("tr_block", msg);
+        }
+        if !(1..=MAX_NEE_SAMPLES).contains(&self.nee_samples) {
+            let msg = format!("expected 1..={MAX_NEE_SAMPLES}, got {}", self.nee_samples);
+            return bad("nee_samples", msg);
+        }
+        for (field, a) in [("alpha", self.alpha), ("photon_alpha", self.photon_alpha)] {
+            if !(a > 0.0 && a < 1.0) {
+                return bad(field, format!("expected a number in (0, 1), got {a}"));
+            }
+        }
+        if !self.exposure.is_finite() {
+            return bad("exposure", "expected a finite number".into());
+        }
+        Ok(())
+    }
+
+    /// The settings that change pixels (all but the pass count and the exposure), as one
+    /// comparable string: what makes two part files one render, and what makes `ppb
+    /// watch` restart its image.
+    pub fn pixel_key(&self) -> String {
+        let pixels = RenderSettings {
+            passes: 0,
+            exposure: 0.0,
+            ..self.clone()
+        };
+        format!("{pixels:?}")
+    }
+
     /// What is wrong with the image size or the light-path count, if anything: the
     /// setting's name and the message.
-    pub fn limits_error(&self) -> Option<(&'static str, String)> {
+    fn limits_error(&self) -> Option<(&'static str, String)> {
         for (field, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > MAX_SIDE {
                 return Some((field, format!("expected 1..={MAX_SIDE} pixels, got {v}")));
@@ -117,16 +175,40 @@ impl RenderSettings {
     }
 }
 
-/// Default alpha of the surface photons (README: measured against the beams' 0.9).
+/// Most free paths per camera segment (`--tr-samples`).
+pub const MAX_TR_SAMPLES: usize = 16;
+/// Default free paths per camera segment per pass (M in the paper).
+pub const DEFAULT_TR_SAMPLES: usize = 4;
+/// Default and largest stratified block (N passes' free paths drawn at once).
+pub const DEFAULT_TR_BLOCK: usize = 64;
+pub const MAX_TR_BLOCK: usize = 64;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TrMode {
+    /// M free paths per pass (the progressive deep shadow map).
+    Random,
+    /// The paper's estimator: free paths of a block of passes drawn at once, M strata.
+    Stratified,
+    /// Ratio tracking on the octree's local majorants (the default).
+    Ratio,
+}
+
+/// Most light samples per camera segment (`--nee-samples`).
+pub const MAX_NEE_SAMPLES: usize = 64;
+/// Default light samples per camera segment: on smoke-grid at 48 passes, 4 stratified
+/// samples cut the smoke's error by a third for 19 % more time (docs/benchmarks.md, "Direct light").
+pub const DEFAULT_NEE_SAMPLES: usize = 4;
+
+/// Default alpha of the surface photons (docs/benchmarks.md: measured against the beams' 0.9).
 pub const DEFAULT_PHOTON_ALPHA: f32 = 0.9;
 
 /// Auto beam radius R1, in pixel footprints at the distance of the media's centre.
-/// Measured at 60 s on the conformance scenes (README, "Radius schedules"): since the
+/// Measured at 60 s on the conformance scenes (docs/benchmarks.md, "Radius schedules"): since the
 /// beams carry only multiple scattering (4 NEE samples take the single), 2 against 1.5
 /// cuts cloud-hg's error by 9 % and leaves fog-box and smoke-grid within their noise.
 pub const AUTO_BEAM_PIXELS: f32 = 2.0;
 /// Auto photon radius R1, in pixel footprints at the distance of the surfaces' centre.
 pub const AUTO_PHOTON_PIXELS: f32 = 3.0;
 /// R1 of the smooth photons (after a diffuse or medium scattering) over the photon radius
-/// R1 (README: measured at equal time).
+/// R1 (docs/benchmarks.md: measured at equal time).
 pub const SMOOTH_PHOTON_SCALE: f32 = 5.0;

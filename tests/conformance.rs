@@ -13,12 +13,12 @@ use std::path::Path;
 
 use ppb::compare::{block_mean, compare, read_mask};
 use ppb::gpu::beams::{CameraTr, PrimaryPath};
+use ppb::majorant::Mode;
 use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
 use ppb::settings::{Method, Radius};
-use ppb::transport::freepath::Mode;
 
 const BLOCK: usize = 4;
 

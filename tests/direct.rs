@@ -7,13 +7,15 @@ use std::path::Path;
 
 use ppb::estimate::photons::Photons;
 use ppb::geometry::Geometry;
+use ppb::majorant::Mode;
 use ppb::media::Media;
 use ppb::sampling::Rng;
 use ppb::scene::toml::load;
 use ppb::transport::direct::Direct;
-use ppb::transport::freepath::{FreePath, Mode};
+use ppb::transport::freepath::FreePath;
 use ppb::transport::light::{LightSampler, LightTracer};
 use ppb::transport::Counters;
+use ppb::transport::SurfaceEstimate;
 
 const RHO: Vec3 = Vec3::splat(0.5);
 

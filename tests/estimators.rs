@@ -126,9 +126,9 @@ fn camera_optical_depths_match_box_chords() {
 /// their sums. A span too narrow for some pair would lose its evaluation here.
 #[test]
 fn splat_finds_every_pair_the_gather_finds() {
+    use ppb::core::Ray;
     use ppb::estimate::beams::BeamMap;
-    use ppb::estimate::eq2::camera_tr;
-    use ppb::geometry::Ray;
+    use ppb::transport::transmittance::camera_tr;
     for scene in ["smoke-grid", "cloud-hg", "fog-box", "glass-caustic"] {
         let path = format!(
             "{}/scenes/conformance/{scene}/scene.toml",

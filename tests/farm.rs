@@ -86,7 +86,7 @@ fn single(scene: &Path, out: &Path, passes: u32) -> Vec<u32> {
         ])
         .arg(out)
         .args(FAST));
-    bits(Path::new(&ppb::farm::with_frame(
+    bits(Path::new(&ppb::core::frames::with_frame(
         &out.to_string_lossy(),
         16,
     )))
@@ -639,7 +639,7 @@ def Volume "Smoke"
         .arg(&out)
         .args(FAST));
     let mean = |f: u32| -> f64 {
-        let p = ppb::farm::with_frame(&out.to_string_lossy(), f);
+        let p = ppb::core::frames::with_frame(&out.to_string_lossy(), f);
         let img = ppb::output::read_exr(Path::new(&p)).unwrap();
         img.pixels.iter().flatten().map(|&x| x as f64).sum::<f64>() / img.pixels.len() as f64
     };

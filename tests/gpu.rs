@@ -10,17 +10,22 @@ use std::process::Command;
 
 use glam::Vec3;
 use ppb::compare::DeviceDiff;
-use ppb::estimate::beams::{BeamMap, BeamPiece};
+use ppb::core::Ray;
+use ppb::estimate::beams::BeamMap;
 use ppb::estimate::eq2;
-use ppb::geometry::Ray;
+use ppb::estimate::eq2::BeamPiece;
+use ppb::estimate::{Timings, TracedPass};
 use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
+use ppb::majorant::Mode;
 use ppb::media::{Media, MediumDesc, Phase};
-use ppb::pass::{Timings, TracedPass, Tracer};
+use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::scene::Camera;
+use ppb::settings::TrMode;
+use ppb::settings::MAX_TR_SAMPLES;
 use ppb::transport::camera::{CameraPass, Pinhole, Primary};
-use ppb::transport::freepath::Mode;
-use ppb::transport::transmittance::{RatioSteps, SegmentTr, TrMode, MAX_TR_SAMPLES};
+use ppb::transport::freepath::RatioSteps;
+use ppb::transport::transmittance::SegmentTr;
 use ppb::transport::{Beam, Counters};
 
 fn data(p: &str) -> std::path::PathBuf {
@@ -310,24 +315,7 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
     // One pixel looking down +x. The rule is the shader's `piece_radiance`, which beam
     // quads share; they are not drawn here, since the splat's camera clip (as on the CPU)
     // drops beams at the camera's depth, the t = 0 cases.
-    let camera = Pinhole::new(
-        &Camera {
-            origin: Vec3::ZERO,
-            target: Vec3::X,
-            up: Vec3::Y,
-            vfov_deg: 30.0,
-        },
-        1,
-        1,
-    );
-    let opts = GpuOptions {
-        primary: PrimaryPath::Gather,
-        camera_tr: CameraTr::Steps,
-        seed: 0,
-        free_path: Mode::Adaptive,
-        walk_budget: None,
-    };
-    let mut est = GpuBeams::new(g, &media, &camera, opts).expect("gpu");
+    let mut est = one_pixel_estimator(g, &media);
     let ray = Ray::new(Vec3::ZERO, Vec3::X);
     let power = Vec3::new(3.0, 5.0, 7.0);
     // A beam along +z crossing the camera ray at t = tx, s = s_at, distance |dy| (exact).
@@ -446,30 +434,10 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
             &BeamPiece::whole(&b, 0),
             R,
             |x, cos| media.in_scatter(x, cos),
-            |t| eq2::camera_tr(&media, &ray, tr, t),
+            |t| ppb::transport::transmittance::camera_tr(&media, &ray, tr, t),
         );
         assert_eq!(cpu.is_some(), counts, "{name}: the CPU rule");
-        let pass = TracedPass {
-            index: 1,
-            camera: CameraPass {
-                image: vec![Vec3::ZERO],
-                primaries: vec![Primary {
-                    dir: ray.d,
-                    t_surf: T_SURF,
-                    tr: tr.clone(),
-                }],
-                secondary: Vec::new(),
-                counters: Counters::default(),
-            },
-            beam_map: Some(BeamMap::build(&[b], R)),
-            beams: vec![b],
-            beam_radius: R,
-            counters: Counters::default(),
-            timings: Timings::default(),
-        };
-        est.clear().expect("clear");
-        est.submit(&pass, &media).expect("submit");
-        let gpu = est.read().expect("read back").0[0];
+        let gpu = one_pixel_on_gpu(&mut est, &media, ray.d, T_SURF, tr, b, R);
         match cpu {
             None => assert_eq!(gpu, [0.0; 4], "{name}: the GPU counted it"),
             Some(c) => {
@@ -480,6 +448,122 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
                 }
             }
         }
+    }
+}
+
+/// A GPU estimator of one pixel looking down +x from the origin, primaries gathered.
+fn one_pixel_estimator(g: ppb::gpu::Gpu, media: &Media) -> GpuBeams {
+    let camera = Pinhole::new(
+        &Camera {
+            origin: Vec3::ZERO,
+            target: Vec3::X,
+            up: Vec3::Y,
+            vfov_deg: 30.0,
+        },
+        1,
+        1,
+    );
+    let opts = GpuOptions {
+        primary: PrimaryPath::Gather,
+        camera_tr: CameraTr::Steps,
+        seed: 0,
+        free_path: Mode::Adaptive,
+        walk_budget: None,
+    };
+    GpuBeams::new(g, media, &camera, opts).expect("gpu")
+}
+
+/// The GPU estimate of one pixel whose primary segment runs along `dir` for `t_surf`
+/// with grid transmittance `tr`, and one beam `b` of radius `r`: (RGB, evaluations).
+fn one_pixel_on_gpu(
+    est: &mut GpuBeams,
+    media: &Media,
+    dir: Vec3,
+    t_surf: f32,
+    tr: &SegmentTr,
+    b: Beam,
+    r: f32,
+) -> [f32; 4] {
+    let pass = TracedPass {
+        index: 1,
+        camera: CameraPass {
+            image: vec![Vec3::ZERO],
+            primaries: vec![Primary {
+                dir,
+                t_surf,
+                tr: tr.clone(),
+            }],
+            secondary: Vec::new(),
+            counters: Counters::default(),
+        },
+        beam_map: Some(BeamMap::build(&[b], r)),
+        beams: vec![b],
+        beam_radius: r,
+        counters: Counters::default(),
+        timings: Timings::default(),
+    };
+    est.clear().expect("clear");
+    est.submit(&pass, media).expect("submit");
+    est.read().expect("read back").0[0]
+}
+
+/// The ray-box rule on both devices (`core::ray_box` and the WGSL's `slab`, one 1/d rule):
+/// a camera segment lying in the plane two medium boxes share is in the box above it
+/// (whose lower face the plane is) and not in the one below; one just off a face is
+/// outside. The CPU's camera transmittance counts exactly the box above, and the GPU's
+/// estimate equals the CPU's.
+#[test]
+fn gpu_box_rule_matches_cpu_for_rays_in_a_face() {
+    const R: f32 = 0.25;
+    const T_SURF: f32 = 2.0;
+    let Some(g) = gpu_or_skip("gpu_box_rule_matches_cpu_for_rays_in_a_face") else {
+        return;
+    };
+    let fog = |lo: [f32; 3], hi: [f32; 3], sigma_t: f32| MediumDesc {
+        bounds: [Vec3::from(lo), Vec3::from(hi)],
+        sigma_t,
+        albedo: Vec3::new(0.8, 0.6, 0.4),
+        phase: Phase { g: 0.3 },
+    };
+    let media = Media::new(vec![
+        // The ray (y = z = 0) lies in the lower face y = 0 of this box ...
+        fog([-8.0, 0.0, -8.0], [8.0, 8.0, 8.0], 0.5),
+        // ... in the upper face y = 0 of this one ...
+        fog([-8.0, -8.0, -8.0], [8.0, 0.0, 8.0], 0.25),
+        // ... and just off the face y = 1e-3 of this one.
+        fog([-8.0, 1e-3, -8.0], [8.0, 8.0, 8.0], 4.0),
+    ]);
+    let mut est = one_pixel_estimator(g, &media);
+    let ray = Ray::new(Vec3::ZERO, Vec3::X);
+    let tr = |t| ppb::transport::transmittance::camera_tr(&media, &ray, &SegmentTr::Clear, t);
+    for t in [0.5f32, 1.0, 1.75] {
+        let want = (-0.5 * t).exp();
+        assert!(
+            (tr(t) - want).abs() < 1e-6,
+            "CPU Tr({t}) = {} vs {want}",
+            tr(t)
+        );
+    }
+    let b = Beam::new(
+        Vec3::new(1.0, 0.1, -0.5),
+        Vec3::Z,
+        1.0,
+        Vec3::new(3.0, 5.0, 7.0),
+    );
+    let cpu = eq2::term(
+        &ray,
+        (0.0, T_SURF),
+        &BeamPiece::whole(&b, 0),
+        R,
+        |x, cos| media.in_scatter(x, cos),
+        tr,
+    )
+    .expect("the pair counts");
+    let gpu = one_pixel_on_gpu(&mut est, &media, ray.d, T_SURF, &SegmentTr::Clear, b, R);
+    assert_eq!(gpu[3], 1.0, "GPU evaluations");
+    for k in 0..3 {
+        let rel = (gpu[k] - cpu[k]).abs() / cpu[k];
+        assert!(cpu[k] > 0.0 && rel < 1e-5, "{gpu:?} vs {cpu}");
     }
 }
 

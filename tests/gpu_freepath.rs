@@ -10,13 +10,14 @@ use std::sync::Arc;
 
 use common::gpu_or_skip;
 use glam::{DAffine3, IVec3, Vec3};
-use ppb::geometry::Ray;
+use ppb::core::Ray;
 use ppb::gpu::freepath::{FpRay, GpuFreePaths};
+use ppb::majorant::Mode;
 use ppb::media::grid::GridBuilder;
 use ppb::media::{GridMedium, Heterogeneous, Media, Phase};
 use ppb::sampling::Rng;
 use ppb::scene::toml::load;
-use ppb::transport::freepath::{FreePath, Mode};
+use ppb::transport::freepath::FreePath;
 use ppb::transport::Counters;
 
 /// 20^3 voxels of (i / 19) x (1 to 2 by (j + k) mod 3), 0.1 m apart, sigma_t = 2 density
@@ -370,10 +371,11 @@ fn walk_visits_the_cpu_leaves() {
 /// mean must match quadrature within 5 measured standard errors.
 #[test]
 fn beam_estimate_tracks_camera_transmittance() {
-    use ppb::estimate::beams::{BeamMap, BeamPiece};
+    use ppb::estimate::beams::BeamMap;
     use ppb::estimate::eq2;
+    use ppb::estimate::eq2::BeamPiece;
+    use ppb::estimate::{Timings, TracedPass};
     use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
-    use ppb::pass::{Timings, TracedPass};
     use ppb::scene::Camera;
     use ppb::transport::camera::{CameraPass, Pinhole, Primary};
     use ppb::transport::transmittance::SegmentTr;

@@ -3,8 +3,9 @@
 //! invariants on them. Without the files the tests say so and pass, unless
 //! PPB_REQUIRE_LARGE=1 (CI, which generates them) makes that a failure.
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
-use ppb::geometry::Ray;
-use ppb::majorant::octree::{depth_for, leaf_for_point, root_span, Octree, DEFAULT_MAX_DEPTH};
+use ppb::core::Ray;
+use ppb::majorant::octree::{depth_for, leaf_for_point, root_span, Octree};
+use ppb::majorant::DEFAULT_MAX_DEPTH;
 use ppb::media::grid::Grid;
 use ppb::media::openvdb::load_grid;
 use ppb::media::{GridMedium, Phase};
@@ -28,7 +29,7 @@ fn load(name: &str) -> Option<(Grid, Value)> {
     );
     if !vdb.exists() || !json.exists() {
         let why = format!(
-            "{} missing: run `python3 tools/make_large_vdbs.py` (see README)",
+            "{} missing: run `python3 tools/make_large_vdbs.py` (see docs/media.md)",
             vdb.display()
         );
         if std::env::var("PPB_REQUIRE_LARGE").as_deref() == Ok("1") {

@@ -10,11 +10,12 @@ use std::time::{Duration, Instant};
 
 use ppb::error::Result;
 use ppb::estimate::Estimator;
+use ppb::estimate::{cpu, TracedPass, View};
 use ppb::film::Film;
-use ppb::pass::{TracedPass, Tracer};
+use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::{Flow, Session};
-use ppb::transport::transmittance::TrMode;
+use ppb::settings::TrMode;
 
 fn data(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -35,13 +36,13 @@ impl Estimator for Recorder {
     }
     fn estimate(
         &mut self,
-        tracer: &Tracer,
+        view: View,
         t: &TracedPass,
         _film: &mut Film,
         _traced: (Instant, Instant),
     ) -> Result<u64> {
         let rgb = |v: &[glam::Vec3]| v.iter().map(|p| p.to_array()).collect::<Vec<_>>();
-        let (beams, evals) = tracer.beam_image(t);
+        let (beams, evals) = cpu::beam_image(view, t);
         self.0
             .lock()
             .unwrap()

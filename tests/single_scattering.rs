@@ -8,14 +8,17 @@
 use glam::Vec3;
 use std::f64::consts::PI;
 
+use ppb::core::ray_box;
+use ppb::core::Ray;
 use ppb::estimate::beams::BeamMap;
-use ppb::geometry::{Geometry, Ray};
-use ppb::media::homogeneous::ray_box;
+use ppb::geometry::Geometry;
+use ppb::majorant::Mode;
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::sampling::Rng;
 use ppb::scene::{Light, Scene};
-use ppb::transport::direct::{Direct, DEFAULT_NEE_SAMPLES};
-use ppb::transport::freepath::{FreePath, Mode};
+use ppb::settings::DEFAULT_NEE_SAMPLES;
+use ppb::transport::direct::Direct;
+use ppb::transport::freepath::FreePath;
 use ppb::transport::light::{LightSampler, LightTracer};
 use ppb::transport::Counters;
 

@@ -19,7 +19,7 @@ run() {
   local secs passes
   secs=$(grep -m1 '"total"' "$json" | tr -dc '0-9.')
   passes=$(grep -m1 '"passes"' "$json" | tr -dc '0-9')
-  # fog-near-light is compared with this repository's corrected re-render (README).
+  # fog-near-light is compared with this repository's corrected re-render (docs/conformance.md).
   local dir="$ref/$scene"
   [ "$scene" = fog-near-light ] && dir=tests/data/conformance/$scene
   local args=("$exr" "$dir/reference.exr" --block 4)

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+use ppb::majorant::Mode;
+use ppb::media::Media;
 use ppb::scene::toml::{self as scene_toml, SceneFile};
-use ppb::transport::freepath::Mode;
-use ppb::watch::octrees;
 
 use super::bench::{bench_run, median_run, BenchArgs, BenchRun};
 use super::scene_name;
@@ -101,7 +101,12 @@ pub fn bench_size(args: BenchSizeArgs) -> Result<ExitCode> {
         let load = start.elapsed().as_secs_f64();
         let settings = b.settings(&file)?;
         let start = Instant::now();
-        let media = octrees::bake(&file.scene, settings.octree_depth, |_, _, _| {});
+        let scene = &file.scene;
+        let media = Media::bake(
+            scene.media.clone(),
+            &scene.grid_media,
+            settings.octree_depth,
+        );
         let build = start.elapsed().as_secs_f64();
         let (mut ws, mut adaptive) = (Vec::new(), Vec::new());
         for _ in 0..args.repeat {

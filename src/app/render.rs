@@ -7,15 +7,18 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+use ppb::core::frames::{at_frame, FrameList};
+use ppb::estimate::Timings;
 use ppb::farm::part::content_hash;
-use ppb::farm::{FrameList, Part, PartHeader, PassRange, Tasks};
+use ppb::farm::{Part, PartHeader, PassRange, Tasks};
 use ppb::gpu::beams::GpuStats;
 use ppb::gpu::Gpu;
-use ppb::output::{self, ExrMeta};
-use ppb::pass::{Timings, Tracer};
+use ppb::output::ExrMeta;
+use ppb::pass::Tracer;
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::session::{Flow, Session};
 use ppb::settings::{Method, RenderSettings};
+use ppb::transport::camera::Pinhole;
 use ppb::transport::Counters;
 
 use super::progress::{Interrupt, Progress, ProgressKind};
@@ -188,7 +191,7 @@ pub fn frame_output(scene: &Path, over: Option<&PathBuf>, frame: Option<u32>) ->
 /// token, or each frame's image would land in one file.
 fn check_output_token(output: Option<&Path>, frames: &[u32]) -> Result<()> {
     let Some(out) = output else { return Ok(()) };
-    let token = ppb::farm::frames::has_token(&out.to_string_lossy());
+    let token = ppb::core::frames::has_token(&out.to_string_lossy());
     if token && frames.is_empty() {
         anyhow::bail!(
             "{}: -o holds the frame token `#` but no --frames were given (add --frames, or \
@@ -207,14 +210,6 @@ fn check_output_token(output: Option<&Path>, frames: &[u32]) -> Result<()> {
     Ok(())
 }
 
-/// `p` with its frame token replaced.
-pub fn at_frame(p: &Path, frame: Option<u32>) -> PathBuf {
-    match frame {
-        Some(f) => PathBuf::from(ppb::farm::with_frame(&p.to_string_lossy(), f)),
-        None => p.to_path_buf(),
-    }
-}
-
 /// The part file of `range` of the frame whose output is `out`.
 pub fn part_path(out: &Path, dir: Option<&PathBuf>, range: PassRange) -> PathBuf {
     let stem = out.file_stem().unwrap_or_default().to_string_lossy();
@@ -223,18 +218,6 @@ pub fn part_path(out: &Path, dir: Option<&PathBuf>, range: PassRange) -> PathBuf
         Some(d) => d.join(name),
         None => out.with_file_name(name),
     }
-}
-
-/// The settings that change pixels, for a part file's check.
-fn pixel_settings(s: &RenderSettings) -> String {
-    format!(
-        "{:?}",
-        RenderSettings {
-            passes: 0,
-            exposure: 0.0,
-            ..s.clone()
-        }
-    )
 }
 
 /// The jobs the flags ask for, over `frames` (empty: a still) of `passes` passes.
@@ -347,6 +330,44 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// Where a job's passes go: the frame's image, or a task's part file.
+struct Target {
+    out: PathBuf,
+    /// The task's part file and its header, for a task.
+    part: Option<(PathBuf, PartHeader)>,
+}
+
+impl Target {
+    /// The image `out`, or for a task its part file (its folder made, the temp files killed
+    /// writers left there swept).
+    fn new(
+        args: &RenderArgs,
+        job: &Job,
+        file: &SceneFile,
+        settings: &RenderSettings,
+    ) -> Result<Self> {
+        let out = frame_output(&args.scene, args.output.as_ref(), job.frame)?;
+        if !job.part {
+            return Ok(Target { out, part: None });
+        }
+        let header = part_header(args, job, file, settings, settings.passes)?;
+        let path = part_path(&out, args.shard.part_dir.as_ref(), job.passes);
+        if let Some(d) = path.parent() {
+            std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
+            ppb::core::fs::sweep_temps(d, ppb::core::fs::STALE_TEMP);
+        }
+        Ok(Target {
+            out,
+            part: Some((path, header)),
+        })
+    }
+
+    /// The file the job writes.
+    fn written(&self) -> &Path {
+        self.part.as_ref().map_or(&self.out, |(p, _)| p)
+    }
+}
+
 /// Renders one job: loads its caches and session, resumes or skips a task whose part
 /// file exists, runs its passes and writes the part or the image.
 #[allow(clippy::too_many_arguments)]
@@ -365,148 +386,212 @@ fn render_job(
     }
     let mut settings = args.over.apply(&file.settings)?;
     settings.passes = passes;
-    let out = frame_output(&args.scene, args.output.as_ref(), job.frame)?;
-    let quiet = args.quiet;
-    let dir = super::cache_dir_for(&args.scene, args.machine.cache_dir.as_ref());
-    let mut header = job
-        .part
-        .then(|| part_header(args, job, &file, &settings, passes))
-        .transpose()?;
-    let part = job
-        .part
-        .then(|| part_path(&out, args.shard.part_dir.as_ref(), job.passes));
-    if let Some(d) = part.as_ref().and_then(|p| p.parent()) {
-        std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
-        ppb::output::sweep_temps(d, ppb::output::STALE_TEMP);
-    }
-    let resumed = match (&part, &mut header) {
-        (Some(path), Some(h)) => existing_part(path, h, quiet),
-        _ => None,
+    let mut target = Target::new(args, job, &file, &settings)?;
+    let resumed = match &target.part {
+        Some((path, h)) => existing_part(path, h, args.quiet),
+        None => None,
     };
-    if let (Some(h), Some(p)) = (&header, &resumed) {
-        if p.header.complete() {
-            if !quiet {
-                eprintln!(
-                    "{}: passes {} already done, skipped",
-                    p.path.display(),
-                    h.range
-                );
-            }
-            progress.skip(job.passes.len() as u64);
-            return Ok(Ended::Done);
+    if let Some(p) = resumed.as_ref().filter(|p| p.header.complete()) {
+        if !args.quiet {
+            let path = p.path.display();
+            eprintln!("{path}: passes {} already done, skipped", job.passes);
         }
+        progress.skip(job.passes.len() as u64);
+        return Ok(Ended::Done);
     }
-    let media = super::cached_media(&file, settings.octree_depth, &dir, quiet)?;
-    let tracer = Tracer::with_media(&file.scene, settings.clone(), media)?;
-    let camera = *tracer.camera();
-    let scene_hash = match &header {
-        Some(h) => h.scene_hash.clone(),
-        None => content_hash(&file.sources)?,
-    };
-    let mut session = Session::open(tracer, gpu, args.machine.gpu_primary, args.machine.gpu_tr)?;
-    let (from, earlier_seconds) = match resumed {
-        Some(p) => {
-            if !quiet {
-                eprintln!(
-                    "{}: resuming after passes {}",
-                    p.path.display(),
-                    p.header.finished()
-                );
-            }
-            progress.skip(p.header.done as u64);
-            let f = p.header.finished().end;
-            session.resume(p.film).map_err(failed)?;
-            (f, p.header.seconds)
-        }
+    let (mut session, meta) = open_session(args, job, &file, &settings, gpu, &target)?;
+    let (from, earlier) = match resumed {
+        Some(p) => resume(&mut session, p, progress, args.quiet)?,
         None => (job.passes.start, 0.0),
     };
-    let exr = |passes: u32, seconds: f64| -> ExrMeta {
+    let run = Run {
+        args,
+        job,
+        progress,
+        interrupt,
+        meta: &meta,
+        earlier,
+        start: Instant::now(),
+    };
+    let stopped = run.passes(&mut session, from, &mut target)?;
+    run.report(&session, &target, stopped, start)
+}
+
+/// The session of a job (octrees from the cache) and what its EXR headers say.
+fn open_session<'a>(
+    args: &'a RenderArgs,
+    job: &Job,
+    file: &SceneFile,
+    settings: &'a RenderSettings,
+    gpu: Option<Gpu>,
+    target: &Target,
+) -> Result<(Session, FrameMeta<'a>)> {
+    let dir = super::cache_dir_for(&args.scene, args.machine.cache_dir.as_ref());
+    let media = super::cached_media(file, settings.octree_depth, &dir, args.quiet)?;
+    let tracer = Tracer::with_media(&file.scene, settings.clone(), media)?;
+    let meta = FrameMeta {
+        args,
+        settings,
+        camera: *tracer.camera(),
+        frame: job.frame,
+        scene_hash: match &target.part {
+            Some((_, h)) => h.scene_hash.clone(),
+            None => content_hash(&file.sources)?,
+        },
+    };
+    let (primary, tr) = (args.machine.gpu_primary, args.machine.gpu_tr);
+    Ok((Session::open(tracer, gpu, primary, tr)?, meta))
+}
+
+/// A job's passes as they run: what stops them and what checkpoints write.
+struct Run<'a> {
+    args: &'a RenderArgs,
+    job: &'a Job,
+    progress: &'a Progress,
+    interrupt: &'a Interrupt,
+    meta: &'a FrameMeta<'a>,
+    /// Render seconds of the task's earlier runs.
+    earlier: f64,
+    start: Instant,
+}
+
+impl Run<'_> {
+    /// Render seconds so far, earlier runs of the task included.
+    fn seconds(&self) -> f64 {
+        self.earlier + self.start.elapsed().as_secs_f64()
+    }
+
+    /// Runs passes after `from` until the job's last, the time budget or a signal, with
+    /// checkpoints, then writes the result; returns the signal's exit code if one came.
+    fn passes(&self, session: &mut Session, from: u32, target: &mut Target) -> Result<Option<u8>> {
+        let budget = self.args.time.map(Duration::from_secs_f64);
+        let last = if budget.is_some() {
+            u32::MAX
+        } else {
+            self.job.passes.end
+        };
+        let mut stopped = None;
+        session
+            .run(from + 1..=last, |s, done| {
+                let i = done.plan.index;
+                self.progress.pass(self.job.frame, i, self.start.elapsed());
+                if self.args.checkpoint.is_some_and(|k| k > 0 && i % k == 0) {
+                    save(s, target, self.meta, self.seconds())?;
+                }
+                stopped = self.interrupt.signalled();
+                Ok::<_, anyhow::Error>(match budget {
+                    _ if stopped.is_some() => Flow::Stop,
+                    Some(b) if self.start.elapsed() >= b => Flow::Stop,
+                    _ => Flow::Continue,
+                })
+            })
+            .map_err(failed)?;
+        save(session, target, self.meta, self.seconds()).map_err(failed)?;
+        Ok(stopped)
+    }
+
+    /// The job's last lines and its stats file; how it ended.
+    fn report(
+        &self,
+        session: &Session,
+        target: &Target,
+        stopped: Option<u8>,
+        start: Instant,
+    ) -> Result<Ended> {
+        let written = target.written();
+        if !self.args.quiet {
+            eprintln!(
+                "{}: {} passes in {:.1} s -> {}",
+                self.args.scene.display(),
+                session.passes(),
+                self.seconds(),
+                written.display()
+            );
+        }
+        if let Some(path) = &self.args.stats {
+            let path = at_frame(path, self.job.frame);
+            write_stats(&path, self.args, session, start).map_err(failed)?;
+        }
+        Ok(match stopped {
+            Some(code) => {
+                eprintln!(
+                    "interrupted: {} passes kept in {}",
+                    session.passes(),
+                    written.display()
+                );
+                Ended::Interrupted(code)
+            }
+            None => Ended::Done,
+        })
+    }
+}
+
+/// Continues a task's partial part file `p` in `session`; returns the last pass it holds
+/// and the seconds spent on it so far.
+fn resume(session: &mut Session, p: Part, progress: &Progress, quiet: bool) -> Result<(u32, f64)> {
+    if !quiet {
+        eprintln!(
+            "{}: resuming after passes {}",
+            p.path.display(),
+            p.header.finished()
+        );
+    }
+    progress.skip(p.header.done as u64);
+    let from = p.header.finished().end;
+    let seconds = p.header.seconds;
+    session.resume(p.film).map_err(failed)?;
+    Ok((from, seconds))
+}
+
+/// What the EXR header of a frame says besides the pixels.
+struct FrameMeta<'a> {
+    args: &'a RenderArgs,
+    settings: &'a RenderSettings,
+    camera: Pinhole,
+    frame: Option<u32>,
+    scene_hash: String,
+}
+
+impl FrameMeta<'_> {
+    fn exr(&self, passes: u32, seconds: f64) -> ExrMeta {
         let mut m = OutputMeta {
-            scene: &args.scene,
-            settings: &settings,
+            scene: &self.args.scene,
+            settings: self.settings,
             passes,
             seconds,
             extra: &[],
         }
         .exr();
         m.set("ppb/pass_range", format!("0..{passes}"));
-        m.set("ppb/scene_hash", scene_hash.clone());
-        if let Some(f) = job.frame {
+        m.set("ppb/scene_hash", self.scene_hash.clone());
+        if let Some(f) = self.frame {
             m.set("ppb/frame", f.to_string());
-            m.frames_per_second = Some(args.fps);
+            m.frames_per_second = Some(self.args.fps);
         }
-        m.world_to_camera = Some(camera.world_to_camera().to_cols_array());
-        m.world_to_ndc = Some(camera.world_to_ndc().to_cols_array());
+        m.world_to_camera = Some(self.camera.world_to_camera().to_cols_array());
+        m.world_to_ndc = Some(self.camera.world_to_ndc().to_cols_array());
         m
-    };
-    let budget = args.time.map(Duration::from_secs_f64);
-    let last = if budget.is_some() {
-        u32::MAX
-    } else {
-        job.passes.end
-    };
-    let render_start = Instant::now();
-    let seconds = |at: Instant| earlier_seconds + at.duration_since(render_start).as_secs_f64();
-    let save = |s: &mut Session, h: &mut Option<PartHeader>| -> Result<()> {
-        let secs = seconds(Instant::now());
-        match (h, &part) {
-            (Some(h), Some(path)) => {
-                let film = s.film()?;
-                h.done = film.passes();
-                h.seconds = secs;
-                h.exr = exr(h.passes, 0.0);
-                Part::write(path, h, &film)?;
-            }
-            _ => {
-                let img = s.image()?;
-                let meta = exr(s.passes(), secs);
-                super::write_image(&out, &img, &meta, settings.exposure)?;
-            }
-        }
-        Ok(())
-    };
-    let mut stopped = None;
-    session
-        .run(from + 1..=last, |s, done| {
-            let i = done.plan.index;
-            progress.pass(job.frame, i, render_start.elapsed());
-            if args.checkpoint.is_some_and(|k| k > 0 && i % k == 0) {
-                save(s, &mut header)?;
-            }
-            stopped = interrupt.signalled();
-            Ok::<_, anyhow::Error>(match budget {
-                _ if stopped.is_some() => Flow::Stop,
-                Some(b) if render_start.elapsed() >= b => Flow::Stop,
-                _ => Flow::Continue,
-            })
-        })
-        .map_err(failed)?;
-    save(&mut session, &mut header).map_err(failed)?;
-    let written = part.as_ref().unwrap_or(&out);
-    if !quiet {
-        eprintln!(
-            "{}: {} passes in {:.1} s -> {}",
-            args.scene.display(),
-            session.passes(),
-            seconds(Instant::now()),
-            written.display()
-        );
     }
-    if let Some(path) = &args.stats {
-        let path = at_frame(path, job.frame);
-        write_stats(&path, args, &session, start).map_err(failed)?;
-    }
-    Ok(match stopped {
-        Some(code) => {
-            eprintln!(
-                "interrupted: {} passes kept in {}",
-                session.passes(),
-                written.display()
-            );
-            Ended::Interrupted(code)
+}
+
+/// Writes what `s` has so far: the task's part file (its header updated), or the image
+/// and its preview. `seconds`: render time including earlier runs of the task.
+fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Result<()> {
+    match &mut t.part {
+        Some((path, h)) => {
+            let film = s.film()?;
+            h.done = film.passes();
+            h.seconds = seconds;
+            h.exr = meta.exr(h.passes, 0.0);
+            Part::write(path, h, &film)?;
         }
-        None => Ended::Done,
-    })
+        None => {
+            let img = s.image()?;
+            let exr = meta.exr(s.passes(), seconds);
+            super::write_image(&t.out, &img, &exr, meta.settings.exposure)?;
+        }
+    }
+    Ok(())
 }
 
 /// The header of a task's part file, before any pass.
@@ -520,7 +605,7 @@ fn part_header(
     Ok(PartHeader {
         version: env!("CARGO_PKG_VERSION").to_string(),
         scene_hash: content_hash(&file.sources)?,
-        settings: pixel_settings(settings),
+        settings: settings.pixel_key(),
         width: settings.width,
         height: settings.height,
         seed: settings.seed,
@@ -544,16 +629,11 @@ fn existing_part(path: &Path, h: &PartHeader, quiet: bool) -> Option<Part> {
     }
     let why = match Part::read(path) {
         Err(e) => e.to_string(),
-        Ok(p) => {
-            let o = &p.header;
-            let same = (&o.version, &o.scene_hash, &o.settings, o.width, o.height)
-                == (&h.version, &h.scene_hash, &h.settings, h.width, h.height)
-                && (o.seed, o.frame, o.passes, o.range) == (h.seed, h.frame, h.passes, h.range);
-            if same {
-                return Some(p);
-            }
-            "it belongs to another scene, settings or range".to_string()
-        }
+        Ok(p) => match h.differs(&p.header) {
+            None if p.header.range == h.range => return Some(p),
+            None => format!("it holds passes {}, this task {}", p.header.range, h.range),
+            Some((field, ..)) => format!("it belongs to another render: its {field} differs"),
+        },
     };
     if !quiet {
         eprintln!(
@@ -587,7 +667,7 @@ fn write_stats(path: &Path, args: &RenderArgs, session: &Session, start: Instant
         gpu: session.gpu_stats(),
     };
     let json = serde_json::to_string_pretty(&stats)?;
-    output::write_atomic(path, |tmp| {
+    ppb::core::fs::write_atomic(path, |tmp| {
         std::fs::write(tmp, &json).map_err(|e| ppb::error::Error::io(tmp, e))
     })?;
     Ok(())

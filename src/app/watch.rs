@@ -12,11 +12,12 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use ppb::error::Error as PpbError;
 use ppb::gpu::Gpu;
+use ppb::media::octrees;
 use ppb::output::Image;
 use ppb::pass::Tracer;
 use ppb::plan::Ramp;
@@ -24,8 +25,9 @@ use ppb::scene::assets::AssetCache;
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::session::{Flow, Session};
 use ppb::settings::RenderSettings;
-use ppb::watch::{deps, diff::Changes, octrees};
+use ppb::watch::{deps, diff::Changes};
 
+use super::live::{Msg, SharedFrame};
 use super::{window, Machine, OutputMeta, Overrides};
 
 #[derive(Args)]
@@ -82,35 +84,6 @@ fn parse_checkpoint(s: &str) -> std::result::Result<Checkpoint, String> {
         },
     }
 }
-
-/// What the worker hears: file changes, window requests.
-pub enum Msg {
-    /// Paths that changed in a watched folder (not yet filtered).
-    Files(Vec<PathBuf>),
-    /// The watcher itself failed (e.g. a watched folder vanished).
-    WatchError(String),
-    /// Write a snapshot of the current image with this exposure.
-    Snapshot { exposure: f32 },
-}
-
-/// The latest image and what the window title shows.
-#[derive(Clone, Default)]
-pub struct Frame {
-    pub width: u32,
-    pub height: u32,
-    pub pixels: Vec<[f32; 3]>,
-    pub passes: u32,
-    pub seconds: f64,
-    pub exposure: f32,
-    pub scene: String,
-    /// Where the beam estimate runs ("cpu" or the adapter).
-    pub device: String,
-    pub error: Option<String>,
-    /// Bumped on every new image, so the window uploads only when it changed.
-    pub serial: u64,
-}
-
-pub type SharedFrame = Arc<Mutex<Frame>>;
 
 pub fn watch(args: WatchArgs) -> Result<ExitCode> {
     super::set_threads(args.machine.threads)?;
@@ -445,9 +418,10 @@ impl Worker {
         let mut lines = Vec::new();
         let mut reused = 0;
         let media = self.trees.media(
-            &file.scene,
+            &file.scene.media,
+            &file.scene.grid_media,
             settings.octree_depth,
-            &self.cache_dir,
+            Some(&self.cache_dir),
             |i, g, origin| match origin {
                 octrees::Origin::Reused => reused += 1,
                 _ => lines.push(octrees::describe(i, g, origin)),

@@ -15,13 +15,16 @@ use winit::event_loop::{ActiveEventLoop, EventLoop, EventLoopProxy};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::WindowId;
 
-use super::watch::{Msg, SharedFrame};
+use super::live::{Msg, SharedFrame};
 
 /// Exposure change per key press, stops.
 const EXPOSURE_STEP: f32 = 0.5;
 
+/// Draws the image, already tone-mapped on the CPU (`output::tone_map`, as the PNG), scaled
+/// to fit: the texture holds sRGB bytes, read raw by a linear surface or decoded for an
+/// sRGB surface to encode again, so the window shows the PNG's values.
 const SHADER: &str = r#"
-struct Params { exposure: f32, encode_srgb: f32, surface: vec2<f32>, image: vec2<f32>, pad: vec2<f32> };
+struct Params { surface: vec2<f32>, image: vec2<f32> };
 @group(0) @binding(0) var img: texture_2d<f32>;
 @group(0) @binding(1) var<uniform> p: Params;
 
@@ -29,11 +32,6 @@ struct Params { exposure: f32, encode_srgb: f32, surface: vec2<f32>, image: vec2
 fn vs(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     let xy = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u));
     return vec4<f32>(xy * 2.0 - 1.0, 0.0, 1.0);
-}
-
-fn srgb(x: f32) -> f32 {
-    if (x <= 0.0031308) { return 12.92 * x; }
-    return 1.055 * pow(x, 1.0 / 2.4) - 0.055;
 }
 
 @fragment
@@ -44,11 +42,7 @@ fn fs(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     if (q.x < 0.0 || q.y < 0.0 || q.x >= p.image.x || q.y >= p.image.y) {
         return vec4<f32>(0.08, 0.08, 0.08, 1.0);
     }
-    let c = clamp(textureLoad(img, vec2<i32>(q), 0).rgb * exp2(p.exposure), vec3<f32>(0.0), vec3<f32>(1.0));
-    if (p.encode_srgb > 0.5) {
-        return vec4<f32>(srgb(c.r), srgb(c.g), srgb(c.b), 1.0);
-    }
-    return vec4<f32>(c, 1.0);
+    return vec4<f32>(textureLoad(img, vec2<i32>(q), 0).rgb, 1.0);
 }
 "#;
 
@@ -75,7 +69,7 @@ impl Window {
             tx,
             exposure_offset: 0.0,
             gpu: None,
-            serial: 0,
+            shown: (0, 0),
             sized_for: (0, 0),
             error: None,
         };
@@ -108,8 +102,8 @@ struct App {
     /// Key-set exposure on top of the scene's, stops.
     exposure_offset: f32,
     gpu: Option<Presenter>,
-    /// Serial of the uploaded frame.
-    serial: u64,
+    /// Serial and exposure (bits) of the uploaded image.
+    shown: (u64, u32),
     /// Image size the window was last sized for.
     sized_for: (u32, u32),
     error: Option<anyhow::Error>,
@@ -183,9 +177,11 @@ impl App {
         let Ok(frame) = self.shared.lock().map(|f| f.clone()) else {
             return;
         };
-        if frame.serial != self.serial && frame.width > 0 && !frame.pixels.is_empty() {
-            g.upload(frame.width, frame.height, &frame.pixels);
-            self.serial = frame.serial;
+        let shown = (frame.serial, exposure.to_bits());
+        if shown != self.shown && frame.width > 0 && !frame.pixels.is_empty() {
+            let rgba = ppb::output::tone_map(&frame.pixels, exposure);
+            g.upload(frame.width, frame.height, &rgba);
+            self.shown = shown;
             if self.sized_for != (frame.width, frame.height) {
                 self.sized_for = (frame.width, frame.height);
                 let _ = g
@@ -201,7 +197,7 @@ impl App {
             "ppb watch | {} | pass {} | {:.1} s | beams on {} | exposure {exposure:+.1}{error}",
             frame.scene, frame.passes, frame.seconds, frame.device
         ));
-        g.draw(exposure);
+        g.draw();
     }
 }
 
@@ -243,9 +239,8 @@ impl Presenter {
             ..Default::default()
         }))
         .context("no Vulkan adapter can present to this window (install mesa-vulkan-drivers)")?;
-        let (device, queue) =
-            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor::default()))
-                .context("creating the Vulkan device")?;
+        let ppb::gpu::Gpu { device, queue, .. } =
+            ppb::gpu::Gpu::open_adapter(&adapter).context("creating the Vulkan device")?;
         let size = window.inner_size();
         let config = surface
             .get_default_config(&adapter, size.width.max(1), size.height.max(1))
@@ -279,7 +274,7 @@ impl Presenter {
         let pipeline = pipeline(&device, &layout, config.format);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("ppb watch params"),
-            size: 32,
+            size: 16,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -305,8 +300,8 @@ impl Presenter {
         }
     }
 
-    /// Uploads the linear image (recreating the texture when its size changed).
-    fn upload(&mut self, w: u32, h: u32, pixels: &[[f32; 3]]) {
+    /// Uploads the tone-mapped image (recreating the texture when its size changed).
+    fn upload(&mut self, w: u32, h: u32, rgba: &[[u8; 4]]) {
         if !matches!(&self.image, Some((_, iw, ih, _)) if (*iw, *ih) == (w, h)) {
             let texture = self.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some("ppb watch image"),
@@ -318,7 +313,11 @@ impl Presenter {
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rgba32Float,
+                format: if self.config.format.is_srgb() {
+                    wgpu::TextureFormat::Rgba8UnormSrgb
+                } else {
+                    wgpu::TextureFormat::Rgba8Unorm
+                },
                 usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
                 view_formats: &[],
             });
@@ -342,10 +341,6 @@ impl Presenter {
         let Some((texture, ..)) = &self.image else {
             return;
         };
-        let rgba: Vec<f32> = pixels
-            .iter()
-            .flat_map(|p| [p[0], p[1], p[2], 1.0])
-            .collect();
         self.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture,
@@ -353,10 +348,10 @@ impl Presenter {
                 origin: wgpu::Origin3d::ZERO,
                 aspect: wgpu::TextureAspect::All,
             },
-            bytemuck::cast_slice(&rgba),
+            bytemuck::cast_slice(rgba),
             wgpu::TexelCopyBufferLayout {
                 offset: 0,
-                bytes_per_row: Some(w * 16),
+                bytes_per_row: Some(w * 4),
                 rows_per_image: Some(h),
             },
             wgpu::Extent3d {
@@ -367,7 +362,7 @@ impl Presenter {
         );
     }
 
-    fn draw(&mut self, exposure: f32) {
+    fn draw(&mut self) {
         let Some((_, w, h, group)) = &self.image else {
             return;
         };
@@ -381,20 +376,11 @@ impl Presenter {
             }
             _ => return,
         };
-        let encode = if self.config.format.is_srgb() {
-            0.0
-        } else {
-            1.0
-        };
-        let params: [f32; 8] = [
-            exposure,
-            encode,
+        let params: [f32; 4] = [
             self.config.width as f32,
             self.config.height as f32,
             *w as f32,
             *h as f32,
-            0.0,
-            0.0,
         ];
         self.queue
             .write_buffer(&self.params, 0, bytemuck::cast_slice(&params));

@@ -8,9 +8,9 @@ use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
 
-use super::eq2::term;
-use crate::geometry::Ray;
-use crate::scene::Rgb;
+use super::eq2::{term, BeamPiece};
+use crate::core::Ray;
+use crate::core::Rgb;
 use crate::transport::Beam;
 
 /// Longest beam piece in the BVH, in beam radii: shorter pieces give tighter boxes but
@@ -18,19 +18,6 @@ use crate::transport::Beam;
 /// 0 and from pass 400) 24 radii halved the build against 12 and left the gather's time
 /// the same, 1.10-1.17x per pass; 48 made the gather slower by more than it saved.
 pub const PIECE_RADII: f32 = 24.0;
-
-/// The stretch [s0, s1) of one beam (whose data it copies, so the map owns everything a
-/// query reads). `origin` is the beam's origin: s is measured from it.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct BeamPiece {
-    pub origin: [f32; 3],
-    pub s0: f32,
-    pub dir: [f32; 3],
-    pub s1: f32,
-    pub power: [f32; 3],
-    pub beam: u32,
-}
 
 /// A BVH node as the GPU walks it, without a stack: nodes are in depth-first pre-order, so
 /// an inner node's first child is the next node, and `skip` is the node after its whole

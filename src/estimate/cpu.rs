@@ -5,16 +5,14 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 use super::beams::BeamMap;
-use super::eq2::camera_tr;
 use super::splat::splat;
-use super::Estimator;
+use super::{Estimator, TracedPass, View};
+use crate::core::Rgb;
 use crate::error::Result;
 use crate::film::Film;
 use crate::media::Media;
-use crate::pass::{TracedPass, Tracer};
-use crate::scene::Rgb;
-use crate::transport::camera::{CameraPass, Pinhole, Secondary};
-use crate::transport::Beam;
+use crate::transport::camera::Secondary;
+use crate::transport::transmittance::camera_tr;
 
 /// The beam estimate on the CPU, added to the film pass by pass.
 pub struct CpuBeams;
@@ -30,12 +28,12 @@ impl Estimator for CpuBeams {
 
     fn estimate(
         &mut self,
-        tracer: &Tracer,
+        view: View,
         t: &TracedPass,
         film: &mut Film,
         _traced: (Instant, Instant),
     ) -> Result<u64> {
-        let (img, evals) = tracer.beam_image(t);
+        let (img, evals) = beam_image(view, t);
         film.add(&img);
         Ok(evals)
     }
@@ -49,21 +47,17 @@ impl Estimator for CpuBeams {
     }
 }
 
-/// Per-pixel beam radiance of a pass and the number of kernel evaluations.
-pub fn beam_image(
-    camera: &Pinhole,
-    media: &Media,
-    pass: &CameraPass,
-    beams: &[Beam],
-    map: Option<&BeamMap>,
-    radius: f32,
-) -> (Vec<Rgb>, u64) {
+/// Per-pixel beam radiance of a traced pass on the CPU alone (without the camera paths'
+/// photon estimate) and the number of kernel evaluations.
+pub fn beam_image(view: View, t: &TracedPass) -> (Vec<Rgb>, u64) {
+    let View { camera, media } = view;
+    let (pass, beams, radius) = (&t.camera, &t.beams, t.beam_radius);
     let pixels = pass.primaries.len();
     if media.is_empty() || beams.is_empty() {
         return (vec![Rgb::ZERO; pixels], 0);
     }
     let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media);
-    if let Some(map) = map {
+    if let Some(map) = &t.beam_map {
         let per_segment: Vec<(Rgb, u64)> = pass
             .secondary
             .par_iter()

@@ -10,15 +10,26 @@
 //! [`term`] is what the CPU splat (`splat`, primary segments) and the CPU BVH gather
 //! (`BeamMap::radiance`, segments after specular bounces) both evaluate, and
 //! `piece_radiance` in `shaders/beam_estimate.wgsl` repeats it comparison for comparison;
-//! [`camera_tr`] is the camera-transmittance factor both CPU paths use (the shader's
+//! [`camera_tr`](crate::transport::transmittance::camera_tr) is the camera-transmittance factor both CPU paths use (the shader's
 //! `camera_tr` reads the same estimate as steps).
+use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use super::beams::BeamPiece;
-use crate::geometry::Ray;
-use crate::media::Media;
-use crate::scene::Rgb;
-use crate::transport::transmittance::SegmentTr;
+use crate::core::Ray;
+use crate::core::Rgb;
+
+/// The stretch [s0, s1) of one beam (whose data it copies, so the map owns everything a
+/// query reads). `origin` is the beam's origin: s is measured from it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct BeamPiece {
+    pub origin: [f32; 3],
+    pub s0: f32,
+    pub dir: [f32; 3],
+    pub s1: f32,
+    pub power: [f32; 3],
+    pub beam: u32,
+}
 
 /// The normalized 1D kernel of the squared distance d2 = d^2: 1/(2r) on the open interval
 /// |d| < r, so it integrates to 1 over d and a crossing at distance exactly r counts
@@ -93,16 +104,11 @@ pub fn term(
     Some(f * Vec3::from(piece.power) * (kernel(c.dist2, r) * tr(c.t) / c.sin2.sqrt()))
 }
 
-/// The camera-transmittance factor of eq. 2: transmittance from the origin of a camera
-/// segment's `ray` to t, the homogeneous media's exact exp(-tau) times this pass's
-/// estimate `grids` of the density grids' share (`SegmentTr::eval`).
-pub fn camera_tr(media: &Media, ray: &Ray, grids: &SegmentTr, t: f32) -> f32 {
-    (-media.optical_depth(ray, 0.0, t)).exp() * grids.eval(t)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::media::Media;
+    use crate::transport::transmittance::{camera_tr, SegmentTr};
 
     /// 2^-10: offsets that keep every coordinate below exactly representable.
     const EPS: f32 = 1.0 / 1024.0;
@@ -263,7 +269,7 @@ mod tests {
     #[test]
     fn camera_tr_is_box_chord_times_grid_estimate() {
         use crate::media::{MediumDesc, Phase};
-        use crate::transport::transmittance::RatioSteps;
+        use crate::transport::freepath::RatioSteps;
         let media = Media::new(vec![MediumDesc {
             bounds: [Vec3::new(1.0, -1.0, -1.0), Vec3::new(3.0, 1.0, 1.0)],
             sigma_t: 0.5,
@@ -286,7 +292,8 @@ mod tests {
     /// free paths (one ending exactly at a step of another) and ratio tracking.
     #[test]
     fn grid_estimate_matches_gpu_steps_at_ties() {
-        use crate::transport::transmittance::{RatioSteps, MAX_TR_SAMPLES};
+        use crate::settings::MAX_TR_SAMPLES;
+        use crate::transport::freepath::RatioSteps;
         let mut lengths = [f32::INFINITY; MAX_TR_SAMPLES];
         lengths[..4].copy_from_slice(&[1.0, 0.5, 1.0, 2.0]);
         let free = SegmentTr::FreePaths { lengths, m: 5 };

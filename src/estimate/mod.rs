@@ -13,8 +13,53 @@ use std::time::Instant;
 
 use crate::error::Result;
 use crate::film::Film;
-use crate::gpu::beams::GpuStats;
-use crate::pass::{TracedPass, Tracer};
+use crate::media::Media;
+use crate::transport::camera::{CameraPass, Pinhole};
+use crate::transport::{Beam, Counters};
+use beams::BeamMap;
+
+/// Wall-clock seconds of one pass's stages.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Timings {
+    pub light_tracing: f64,
+    pub build_maps: f64,
+    pub camera_paths: f64,
+    /// The beam estimate on the CPU (0 when the GPU does it).
+    pub beam_estimate: f64,
+}
+
+impl Timings {
+    pub fn add(&mut self, o: &Timings) {
+        self.light_tracing += o.light_tracing;
+        self.build_maps += o.build_maps;
+        self.camera_paths += o.camera_paths;
+        self.beam_estimate += o.beam_estimate;
+    }
+
+    pub fn total(&self) -> f64 {
+        self.light_tracing + self.build_maps + self.camera_paths + self.beam_estimate
+    }
+}
+
+/// A pass traced up to the beam estimate: everything the estimate reads.
+pub struct TracedPass {
+    /// 1-based pass number.
+    pub index: u32,
+    pub camera: CameraPass,
+    pub beams: Vec<Beam>,
+    /// The beam BVH (built when the camera can reach a specular surface, or on request).
+    pub beam_map: Option<BeamMap>,
+    pub beam_radius: f32,
+    pub counters: Counters,
+    pub timings: Timings,
+}
+
+/// What stays fixed across a render's passes that an estimate reads besides the pass.
+#[derive(Clone, Copy)]
+pub struct View<'a> {
+    pub camera: &'a Pinhole,
+    pub media: &'a Media,
+}
 
 /// Where the beam estimate of traced passes runs. Both implementations compute the same
 /// per-pixel sums; a session calls [`Estimator::estimate`] once per pass in order.
@@ -28,7 +73,7 @@ pub trait Estimator: Send {
     /// traced `t`. Returns the beam evaluations counted now.
     fn estimate(
         &mut self,
-        tracer: &Tracer,
+        view: View,
         t: &TracedPass,
         film: &mut Film,
         traced: (Instant, Instant),
@@ -38,8 +83,4 @@ pub trait Estimator: Send {
     fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>>;
     /// Forgets the sums kept aside (the session restarts).
     fn clear(&mut self) -> Result<()>;
-    /// How the GPU estimate overlapped tracing, for a GPU estimator.
-    fn gpu_stats(&self) -> Option<GpuStats> {
-        None
-    }
 }

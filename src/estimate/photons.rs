@@ -6,8 +6,8 @@
 //! lowers its noise, while a caustic's edges need the narrow one.
 use glam::{IVec3, Vec3};
 
-use crate::scene::Rgb;
-use crate::transport::Photon;
+use crate::core::Rgb;
+use crate::transport::{Photon, SurfaceEstimate};
 
 pub struct PhotonMap {
     photons: Vec<Photon>,
@@ -97,6 +97,13 @@ pub struct Photons {
     smooth: PhotonMap,
 }
 
+impl SurfaceEstimate for Photons {
+    /// The sum of both maps' estimates (see [`PhotonMap::radiance`]).
+    fn radiance(&self, x: Vec3, n: Vec3, rho: Rgb, lookups: &mut u64) -> Rgb {
+        self.sharp.radiance(x, n, rho, lookups) + self.smooth.radiance(x, n, rho, lookups)
+    }
+}
+
 impl Photons {
     pub fn build(photons: &[Photon], sharp_radius: f32, smooth_radius: f32) -> Self {
         let (smooth, sharp): (Vec<Photon>, Vec<Photon>) =
@@ -105,11 +112,6 @@ impl Photons {
             sharp: PhotonMap::build(&sharp, sharp_radius),
             smooth: PhotonMap::build(&smooth, smooth_radius),
         }
-    }
-
-    /// The sum of both maps' estimates (see [`PhotonMap::radiance`]).
-    pub fn radiance(&self, x: Vec3, n: Vec3, rho: Rgb, lookups: &mut u64) -> Rgb {
-        self.sharp.radiance(x, n, rho, lookups) + self.smooth.radiance(x, n, rho, lookups)
     }
 }
 

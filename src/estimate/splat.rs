@@ -9,12 +9,13 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::beams::BeamPiece;
-use super::eq2::{camera_tr, term};
-use crate::geometry::Ray;
+use super::eq2::term;
+use super::eq2::BeamPiece;
+use crate::core::Ray;
+use crate::core::Rgb;
 use crate::media::Media;
-use crate::scene::Rgb;
 use crate::transport::camera::{Pinhole, Primary};
+use crate::transport::transmittance::camera_tr;
 use crate::transport::Beam;
 
 /// Rows per parallel band.

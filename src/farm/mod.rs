@@ -2,10 +2,8 @@
 //! tasks an engine runs by index, part files of partial sums and their exact merge.
 //! ppb schedules nothing itself: Slurm, OpenJD or Kubernetes run the tasks (the job
 //! files are written by the `ppb farm` command).
-pub mod frames;
 pub mod part;
 pub mod tasks;
 
-pub use frames::{with_frame, FrameList};
 pub use part::{merge, Part, PartHeader};
 pub use tasks::{PassRange, Task, Tasks};

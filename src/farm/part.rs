@@ -6,9 +6,10 @@
 //! (width x height x RGB, i128 LE), then the blake3 hash of everything before it.
 use std::path::{Path, PathBuf};
 
+use crate::core::fs::write_atomic;
 use crate::error::{Error, Result};
 use crate::film::Film;
-use crate::output::{write_atomic, ExrMeta};
+use crate::output::ExrMeta;
 
 use super::tasks::PassRange;
 
@@ -46,6 +47,33 @@ pub struct PartHeader {
 }
 
 impl PartHeader {
+    /// The first field in which `o` is of another render than `self` (ppb version, scene
+    /// hash, size, pixel settings, seed, frame, pass count), with both values; None when
+    /// both are parts of one render. The one identity check of a merge and of a resumed
+    /// task.
+    pub fn differs(&self, o: &PartHeader) -> Option<(&'static str, String, String)> {
+        let size = |h: &PartHeader| format!("{}x{}", h.width, h.height);
+        [
+            ("ppb version", self.version.clone(), o.version.clone()),
+            (
+                "scene hash (the scene or an asset changed)",
+                self.scene_hash.clone(),
+                o.scene_hash.clone(),
+            ),
+            ("resolution", size(self), size(o)),
+            ("settings", self.settings.clone(), o.settings.clone()),
+            ("seed", self.seed.to_string(), o.seed.to_string()),
+            (
+                "frame",
+                format!("{:?}", self.frame),
+                format!("{:?}", o.frame),
+            ),
+            ("pass count", self.passes.to_string(), o.passes.to_string()),
+        ]
+        .into_iter()
+        .find(|(_, a, b)| a != b)
+    }
+
     /// Whether every pass of its range is in the sums.
     pub fn complete(&self) -> bool {
         self.done == self.range.len()
@@ -163,57 +191,12 @@ pub fn merge(mut parts: Vec<Part>) -> Result<(PartHeader, Film)> {
     let p0 = first.path.clone();
     for p in &parts {
         let h = &p.header;
-        let mismatch = |field: &str, a: String, b: String| {
-            Error::Other(format!(
+        if let Some((field, a, b)) = h0.differs(h) {
+            return Err(Error::Other(format!(
                 "{} and {} do not belong to one render: {field} differs ({a} vs {b})",
                 p0.display(),
                 p.path.display()
-            ))
-        };
-        if h.version != h0.version {
-            return Err(mismatch(
-                "ppb version",
-                h0.version.clone(),
-                h.version.clone(),
-            ));
-        }
-        if h.scene_hash != h0.scene_hash {
-            return Err(mismatch(
-                "scene hash (the scene or an asset changed)",
-                h0.scene_hash.clone(),
-                h.scene_hash.clone(),
-            ));
-        }
-        if (h.width, h.height) != (h0.width, h0.height) {
-            return Err(mismatch(
-                "resolution",
-                format!("{}x{}", h0.width, h0.height),
-                format!("{}x{}", h.width, h.height),
-            ));
-        }
-        if h.settings != h0.settings {
-            return Err(mismatch(
-                "settings",
-                h0.settings.clone(),
-                h.settings.clone(),
-            ));
-        }
-        if h.seed != h0.seed {
-            return Err(mismatch("seed", h0.seed.to_string(), h.seed.to_string()));
-        }
-        if h.frame != h0.frame {
-            return Err(mismatch(
-                "frame",
-                format!("{:?}", h0.frame),
-                format!("{:?}", h.frame),
-            ));
-        }
-        if h.passes != h0.passes {
-            return Err(mismatch(
-                "pass count",
-                h0.passes.to_string(),
-                h.passes.to_string(),
-            ));
+            )));
         }
         if !h.complete() {
             return Err(Error::Other(format!(

@@ -3,24 +3,9 @@ use glam::{Vec3, Vec3A};
 use obvhs::{bvh2::builder::build_bvh2_from_tris, bvh2::Bvh2, ray::RayHit, triangle::Triangle};
 use std::time::Duration;
 
+use crate::core::{Ray, Rgb};
 use crate::error::{Error, Result};
-use crate::scene::{Light, Material, Rgb, Scene};
-
-#[derive(Clone, Copy, Debug)]
-pub struct Ray {
-    pub o: Vec3,
-    /// Unit direction.
-    pub d: Vec3,
-}
-
-impl Ray {
-    pub fn new(o: Vec3, d: Vec3) -> Self {
-        Ray { o, d }
-    }
-    pub fn at(&self, t: f32) -> Vec3 {
-        self.o + self.d * t
-    }
-}
+use crate::scene::{Light, Material, Scene};
 
 /// What a ray hit.
 #[derive(Clone, Copy, Debug)]

@@ -7,16 +7,15 @@
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::beams::CHUNK;
-use super::layout::{media_params, MAX_GRIDS};
-use super::{
-    buffer_entry, compute_pipelines, read_back, uniform_stride, uniform_table, Gpu, READ,
-    READ_WRITE, UNIFORM,
+use super::buffers::{
+    buffer_entry, read_back, storage_init, uniform_stride, uniform_table, CHUNK, READ, READ_WRITE,
+    UNIFORM,
 };
+use super::layout::{media_params, mode_word, octree_upload, Octrees};
+use super::{compute_pipelines, Gpu};
 use crate::error::{Error, Result};
-use crate::majorant::Node;
+use crate::majorant::Mode;
 use crate::media::Media;
-use crate::transport::freepath::Mode;
 
 /// The functions a kernel appends to use free-path sampling (after its own source; it
 /// also appends `media.wgsl`).
@@ -30,18 +29,6 @@ pub const SHADER: &str = concat!(
 );
 
 const WORKGROUP: u32 = 64;
-
-/// Where each grid's octree starts in the concatenated node buffer, each grid's global
-/// majorant (Woodcock) and the mode; `Octrees` in `freepath.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct Octrees {
-    pub roots: [[u32; 4]; 2],
-    pub majorants: [[f32; 4]; 2],
-    /// 0: adaptive (the octree's leaves), 1: Woodcock.
-    pub mode: u32,
-    pub _pad: [u32; 3],
-}
 
 /// One test ray: [0, tmax] along `dir` from `origin`, its realizations keyed by `seed`.
 #[repr(C)]
@@ -86,37 +73,6 @@ pub struct GpuSegment {
     pub t1: f32,
     pub majorant: f32,
     pub minorant: f32,
-}
-
-pub(crate) fn mode_word(mode: Mode) -> u32 {
-    match mode {
-        Mode::Adaptive => 0,
-        Mode::Woodcock => 1,
-    }
-}
-
-/// Every grid's octree nodes, concatenated (children indices stay relative to their
-/// grid's root, which `Octrees::roots` locates), and the [`Octrees`] block (mode 0).
-pub fn octree_upload(media: &Media) -> Result<(Octrees, Vec<Node>)> {
-    if media.grids.len() > MAX_GRIDS {
-        return Err(Error::Other(format!(
-            "the GPU handles up to {MAX_GRIDS} grids; this scene has {}",
-            media.grids.len()
-        )));
-    }
-    let mut o = Octrees::default();
-    let mut nodes = Vec::new();
-    for (i, g) in media.grids.iter().enumerate() {
-        o.roots[i / 4][i % 4] = u32::try_from(nodes.len())
-            .map_err(|_| Error::Other("octrees too large for the GPU".into()))?;
-        o.majorants[i / 4][i % 4] = g.majorant();
-        nodes.extend_from_slice(&g.octree().nodes);
-    }
-    if nodes.is_empty() {
-        // A binding may not be empty.
-        nodes.push(Node::default());
-    }
-    Ok((o, nodes))
 }
 
 /// The free-path test kernels with the media and octrees uploaded.
@@ -365,26 +321,6 @@ fn items(rays: usize, per_ray: u32) -> Result<u32> {
         .map_err(|_| Error::Other("too many free-path items for one batch".into()))
 }
 
-/// A read-only storage buffer holding `data` (16 zero bytes if empty: no binding may be).
-/// A storage buffer holding `data` (16 zero bytes when empty: a binding may not be).
-pub(crate) fn storage_init(gpu: &Gpu, label: &str, data: &[u8]) -> Result<wgpu::Buffer> {
-    if data.len() as u64 > gpu.limits.max_storage_buffer_binding_size {
-        return Err(Error::Gpu(format!(
-            "{label} needs {} bytes, over the adapter's storage binding limit of {}",
-            data.len(),
-            gpu.limits.max_storage_buffer_binding_size
-        )));
-    }
-    let contents: &[u8] = if data.is_empty() { &[0; 16] } else { data };
-    Ok(gpu
-        .device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage: wgpu::BufferUsages::STORAGE,
-        }))
-}
-
 /// Bindings 0-7 of `freepath_test.wgsl`; the job uniform (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
@@ -410,6 +346,7 @@ mod tests {
     use super::*;
     use crate::gpu::layout::Params;
     use crate::gpu::validated;
+    use crate::majorant::Node;
     use std::mem::{offset_of, size_of};
 
     /// The free-path shader (test kernels + freepath.wgsl + media.wgsl) parses and

@@ -1,14 +1,15 @@
 //! The GPU beam estimate's buffers as `Pod` structs, defined once: the CPU fills them from
 //! [`Media`] and the traced pass, and `shaders/beam_estimate.wgsl` declares the same
 //! layouts (checked by the naga test in `gpu::tests`). Beams travel as
-//! [`crate::estimate::beams::BeamPiece`] and [`crate::estimate::beams::BvhNode`].
+//! [`crate::estimate::eq2::BeamPiece`] and [`crate::estimate::beams::BvhNode`].
 use bytemuck::{Pod, Zeroable};
 
+use crate::core::ray_box;
+use crate::core::Ray;
 use crate::error::{Error, Result};
-use crate::estimate::beams::BeamPiece;
-use crate::geometry::Ray;
+use crate::estimate::eq2::BeamPiece;
+use crate::majorant::{Mode, Node};
 use crate::media::grid::{Grid, SEARCH_SLOT};
-use crate::media::homogeneous::ray_box;
 use crate::media::{GridMedium, Media};
 use crate::transport::camera::CameraPass;
 use crate::transport::transmittance::SegmentTr;
@@ -302,4 +303,46 @@ impl SegmentUpload {
             _pad: [0; 2],
         })
     }
+}
+/// Where each grid's octree starts in the concatenated node buffer, each grid's global
+/// majorant (Woodcock) and the mode; `Octrees` in `freepath.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Octrees {
+    pub roots: [[u32; 4]; 2],
+    pub majorants: [[f32; 4]; 2],
+    /// 0: adaptive (the octree's leaves), 1: Woodcock.
+    pub mode: u32,
+    pub _pad: [u32; 3],
+}
+
+pub(crate) fn mode_word(mode: Mode) -> u32 {
+    match mode {
+        Mode::Adaptive => 0,
+        Mode::Woodcock => 1,
+    }
+}
+
+/// Every grid's octree nodes, concatenated (children indices stay relative to their
+/// grid's root, which `Octrees::roots` locates), and the [`Octrees`] block (mode 0).
+pub fn octree_upload(media: &Media) -> Result<(Octrees, Vec<Node>)> {
+    if media.grids.len() > MAX_GRIDS {
+        return Err(Error::Other(format!(
+            "the GPU handles up to {MAX_GRIDS} grids; this scene has {}",
+            media.grids.len()
+        )));
+    }
+    let mut o = Octrees::default();
+    let mut nodes = Vec::new();
+    for (i, g) in media.grids.iter().enumerate() {
+        o.roots[i / 4][i % 4] = u32::try_from(nodes.len())
+            .map_err(|_| Error::Other("octrees too large for the GPU".into()))?;
+        o.majorants[i / 4][i % 4] = g.majorant();
+        nodes.extend_from_slice(&g.octree().nodes);
+    }
+    if nodes.is_empty() {
+        // A binding may not be empty.
+        nodes.push(Node::default());
+    }
+    Ok((o, nodes))
 }

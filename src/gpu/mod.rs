@@ -3,6 +3,7 @@
 //! ([`freepath`]) and the estimator ([`beams::GpuBeams`]). The CPU path in `estimate::cpu`
 //! computes the same sums.
 pub mod beams;
+pub mod buffers;
 pub mod freepath;
 pub mod layout;
 
@@ -94,35 +95,44 @@ pub fn open(kind: DeviceKind) -> Result<Option<Gpu>> {
             _ => Ok(None),
         };
     };
-    let info = adapter.get_info();
-    let limits = adapter.limits();
-    // Blending into float32 targets lets primary segments be rasterised (`gpu::beams`).
-    let desc = wgpu::DeviceDescriptor {
-        label: Some("ppb"),
-        required_features: adapter.features() & wgpu::Features::FLOAT32_BLENDABLE,
-        required_limits: limits.clone(),
-        ..Default::default()
-    };
-    let (device, queue) = pollster::block_on(adapter.request_device(&desc))
-        .map_err(|e| Error::Gpu(format!("{}: cannot open the device: {e}", info.name)))?;
-    let errors: Arc<Mutex<Option<String>>> = Arc::default();
-    let slot = errors.clone();
-    device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-        let mut s = slot.lock().unwrap_or_else(|p| p.into_inner());
-        s.get_or_insert_with(|| e.to_string());
-    }));
-    let slot = errors.clone();
-    device.set_device_lost_callback(move |reason, msg| {
-        let mut s = slot.lock().unwrap_or_else(|p| p.into_inner());
-        s.get_or_insert_with(|| format!("device lost ({reason:?}): {msg}"));
-    });
-    Ok(Some(Gpu {
-        device,
-        queue,
-        info,
-        limits,
-        errors,
-    }))
+    Gpu::open_adapter(&adapter).map(Some)
+}
+
+impl Gpu {
+    /// Opens `adapter`'s device, with its full limits, float32 blending where it has it
+    /// (primary segments are rasterised then, `gpu::beams`) and its errors and loss
+    /// recorded for [`Gpu::take_error`]. The one way ppb opens a device: the estimate's
+    /// adapter, or the one that presents `ppb watch`'s window.
+    pub fn open_adapter(adapter: &wgpu::Adapter) -> Result<Gpu> {
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("ppb"),
+            required_features: adapter.features() & wgpu::Features::FLOAT32_BLENDABLE,
+            required_limits: limits.clone(),
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
+            .map_err(|e| Error::Gpu(format!("{}: cannot open the device: {e}", info.name)))?;
+        let errors: Arc<Mutex<Option<String>>> = Arc::default();
+        let slot = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let mut s = slot.lock().unwrap_or_else(|p| p.into_inner());
+            s.get_or_insert_with(|| e.to_string());
+        }));
+        let slot = errors.clone();
+        device.set_device_lost_callback(move |reason, msg| {
+            let mut s = slot.lock().unwrap_or_else(|p| p.into_inner());
+            s.get_or_insert_with(|| format!("device lost ({reason:?}): {msg}"));
+        });
+        Ok(Gpu {
+            device,
+            queue,
+            info,
+            limits,
+            errors,
+        })
+    }
 }
 
 /// Parses and validates a kernel's source as wgpu does at pipeline creation (panicking
@@ -159,88 +169,6 @@ pub(crate) fn validated(source: &str) -> impl Fn(&str, usize, &[(&str, usize)]) 
         }
     }
 }
-
-/// Copies `size` bytes of `src` to the CPU at the end of `enc`'s commands, submits them and
-/// waits; `what` names the data in errors.
-pub(crate) fn read_back<T: bytemuck::Pod>(
-    gpu: &Gpu,
-    mut enc: wgpu::CommandEncoder,
-    src: &wgpu::Buffer,
-    size: u64,
-    what: &str,
-) -> Result<Vec<T>> {
-    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(what),
-        size,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    enc.copy_buffer_to_buffer(src, 0, &staging, 0, size);
-    gpu.queue.submit([enc.finish()]);
-    let slice = staging.slice(..);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| Error::Gpu(format!("waiting for {what}: {e}")))?;
-    rx.recv()
-        .map_err(|_| Error::Gpu(format!("reading {what} never completed")))?
-        .map_err(|e| Error::Gpu(format!("mapping {what}: {e}")))?;
-    let view = slice
-        .get_mapped_range()
-        .map_err(|e| Error::Gpu(format!("reading {what}: {e}")))?;
-    let data = bytemuck::cast_slice::<u8, T>(&view).to_vec();
-    drop(view);
-    staging.unmap();
-    Ok(data)
-}
-
-/// Bytes between entries of a uniform table of `T` read with dynamic offsets.
-pub(crate) fn uniform_stride<T>(gpu: &Gpu) -> u64 {
-    (gpu.limits.min_uniform_buffer_offset_alignment as u64).max(std::mem::size_of::<T>() as u64)
-}
-
-/// `items` laid out `stride` bytes apart, for a uniform read with dynamic offsets.
-pub(crate) fn uniform_table<'a, T: bytemuck::Pod>(
-    items: impl IntoIterator<Item = &'a T>,
-    stride: u64,
-) -> Vec<u8> {
-    items
-        .into_iter()
-        .flat_map(|item| {
-            let mut b = bytemuck::bytes_of(item).to_vec();
-            b.resize(stride as usize, 0);
-            b
-        })
-        .collect()
-}
-
-/// A buffer binding of a bind group layout, seen by `stages`.
-pub(crate) fn buffer_entry(
-    binding: u32,
-    stages: wgpu::ShaderStages,
-    ty: wgpu::BufferBindingType,
-    dynamic_offset: bool,
-) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: stages,
-        ty: wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: dynamic_offset,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-pub(crate) const READ: wgpu::BufferBindingType =
-    wgpu::BufferBindingType::Storage { read_only: true };
-pub(crate) const READ_WRITE: wgpu::BufferBindingType =
-    wgpu::BufferBindingType::Storage { read_only: false };
-pub(crate) const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
 
 /// `source` compiled, with a compute pipeline per entry point, each over one bind group of
 /// `bindings`.
@@ -281,7 +209,8 @@ mod tests {
     use super::beams::SHADER;
     use super::layout::{BeamQuad, Chunk, GridMeta, MediumBox, Params, Segment};
     use super::validated;
-    use crate::estimate::beams::{BeamPiece, BvhNode};
+    use crate::estimate::beams::BvhNode;
+    use crate::estimate::eq2::BeamPiece;
     use std::mem::{offset_of, size_of};
 
     /// The shader parses and validates (naga, as wgpu does at pipeline creation), and every

@@ -9,9 +9,9 @@
 use std::path::{Path, PathBuf};
 
 use super::octree::{Node, Octree};
+use super::Field;
+use crate::core::fs::write_atomic;
 use crate::error::{Error, Result};
-use crate::media::GridMedium;
-use crate::output::write_atomic;
 
 const MAGIC: &[u8; 8] = b"PPBOCTR\0";
 /// Bump when the node layout or the build algorithm changes.
@@ -31,7 +31,7 @@ pub enum Status {
 const BUILDER: &[u8] = b"bounds from voxel blocks, exact below 4 voxels";
 
 /// The cache key of a medium's octree under these build settings.
-pub fn key(g: &GridMedium, max_depth: u32) -> [u8; 32] {
+pub fn key(g: &impl Field, max_depth: u32) -> [u8; 32] {
     let mut h = blake3::Hasher::new();
     h.update(MAGIC);
     h.update(&FORMAT_VERSION.to_le_bytes());
@@ -40,7 +40,7 @@ pub fn key(g: &GridMedium, max_depth: u32) -> [u8; 32] {
     h.update(BUILDER);
     h.update(&super::octree::STEP_COST.to_le_bytes());
     h.update(&super::octree::TENTATIVE_COST.to_le_bytes());
-    h.update(&g.source_hash);
+    h.update(&g.source_hash());
     *h.finalize().as_bytes()
 }
 
@@ -115,7 +115,7 @@ pub fn decode(bytes: &[u8], key: &[u8; 32]) -> std::result::Result<Octree, Strin
 }
 
 /// Looks the medium's octree up in `dir`.
-pub fn load(dir: &Path, g: &GridMedium, max_depth: u32) -> (Status, Option<Octree>) {
+pub fn load(dir: &Path, g: &impl Field, max_depth: u32) -> (Status, Option<Octree>) {
     let k = key(g, max_depth);
     let path = path_for(dir, &k);
     match std::fs::read(&path) {
@@ -129,9 +129,9 @@ pub fn load(dir: &Path, g: &GridMedium, max_depth: u32) -> (Status, Option<Octre
 }
 
 /// Writes the octree atomically into `dir` (created if needed); returns the file path.
-pub fn store(dir: &Path, g: &GridMedium, max_depth: u32, tree: &Octree) -> Result<PathBuf> {
+pub fn store(dir: &Path, g: &impl Field, max_depth: u32, tree: &Octree) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    crate::output::sweep_temps(dir, crate::output::STALE_TEMP);
+    crate::core::fs::sweep_temps(dir, crate::core::fs::STALE_TEMP);
     let k = key(g, max_depth);
     let path = path_for(dir, &k);
     let bytes = encode(tree, &k);

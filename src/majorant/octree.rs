@@ -14,9 +14,8 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, IVec3, UVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::geometry::Ray;
-use crate::media::homogeneous::ray_box;
-use crate::media::GridMedium;
+use super::Field;
+use crate::core::{ray_box, slab, Ray};
 
 /// Deepest pyramid a build uses unless asked for less: 256^3 finest cells, which the
 /// memory budget allows. A grid's own depth is lower when its voxels are fewer, see
@@ -38,8 +37,8 @@ pub const TENTATIVE_COST: f32 = 0.15;
 /// The pyramid depth for `g`: finest cells about one voxel wide, so the cost model can
 /// split down to single voxels where the field varies, capped by `max_depth` and by
 /// [`PYRAMID_BUDGET_BYTES`]. A 64^3 grid gets 6, a 1024^3 one 8 (4 voxels per cell).
-pub fn depth_for(g: &GridMedium, max_depth: u32) -> u32 {
-    let [lo, hi] = g.bounds;
+pub fn depth_for(g: &impl Field, max_depth: u32) -> u32 {
+    let [lo, hi] = g.bounds();
     let (ilo, ihi) = index_box(g, lo, hi);
     let voxels = (ihi - ilo).max_element().max(1.0);
     let data = voxels.log2().ceil() as u32;
@@ -119,10 +118,10 @@ struct Pyramid {
 
 impl Octree {
     /// Bakes the octree of `g` over its world bounds.
-    pub fn build(g: &GridMedium, max_depth: u32) -> Octree {
+    pub fn build(g: &impl Field, max_depth: u32) -> Octree {
         let depth = depth_for(g, max_depth);
         let pyramid = Pyramid::build(g, depth);
-        let [lo, hi] = g.bounds;
+        let [lo, hi] = g.bounds();
         let mut nodes = vec![Node::default()];
         let best = pyramid.best_costs(lo, hi);
         emit(
@@ -166,12 +165,12 @@ impl Octree {
     /// just past the current distance (one table read, see [`CellIndex`]), use its exit
     /// distance as the next start.
     pub fn walk(&self, ray: &Ray, tmax: f32, mut f: impl FnMut(LeafBounds, f32, f32) -> bool) {
-        let inv = ray.d.recip();
+        let inv = ray.inv_d();
         let root = self.root();
-        let Some((t0, t1)) = slab(ray, inv, root, 0.0, tmax) else {
+        let (lo, hi) = (Vec3::from(root.min), Vec3::from(root.max));
+        let Some((t0, t1)) = slab(ray.o, inv, lo, hi, 0.0, tmax) else {
             return;
         };
-        let (lo, hi) = (Vec3::from(root.min), Vec3::from(root.max));
         let size_nudge = (hi - lo).max_element() * 1e-6;
         // Far from the root, a box-relative step is lost in float32 rounding of t and of
         // the point; it must also exceed a few ulps of both, or the walk stops advancing.
@@ -299,14 +298,6 @@ fn node_leaf(n: &Node) -> (LeafBounds, Vec3, Vec3) {
     (bounds, Vec3::from(n.min), Vec3::from(n.max))
 }
 
-fn slab(ray: &Ray, inv: Vec3, n: &Node, t0: f32, t1: f32) -> Option<(f32, f32)> {
-    let a = (Vec3::from(n.min) - ray.o) * inv;
-    let b = (Vec3::from(n.max) - ray.o) * inv;
-    let near = a.min(b).max_element().max(t0);
-    let far = a.max(b).min_element().min(t1);
-    (near < far).then_some((near, far))
-}
-
 fn cell_index(res: i32, c: IVec3) -> usize {
     ((c.z * res + c.y) * res + c.x) as usize
 }
@@ -314,9 +305,9 @@ fn cell_index(res: i32, c: IVec3) -> usize {
 impl Pyramid {
     /// Finest level from the grid's voxels: a cell's bounds cover every voxel whose
     /// trilinear support (one voxel around it) reaches into the cell.
-    fn build(g: &GridMedium, depth: u32) -> Pyramid {
+    fn build(g: &impl Field, depth: u32) -> Pyramid {
         let res = 1i32 << depth;
-        let [lo, hi] = g.bounds;
+        let [lo, hi] = g.bounds();
         let cell = (hi - lo) / res as f32;
         let aligned = axis_aligned(g);
         let fine: Vec<(f32, f32)> = (0..res * res * res)
@@ -442,7 +433,7 @@ const EXACT_MAX_VOXELS: f64 = 4.0;
 /// for small cells of an axis-aligned grid (`aligned`: [`axis_aligned`] of `g`, worked out
 /// once per build).
 fn cell_bounds(
-    g: &GridMedium,
+    g: &impl Field,
     aligned: bool,
     cmin: Vec3,
     cmax: Vec3,
@@ -453,9 +444,9 @@ fn cell_bounds(
     // Trilinear values at any point come from the 8 voxels around it.
     let a = ilo.floor().as_ivec3();
     let b = ihi.floor().as_ivec3() + 1;
-    let s = g.density_scale;
-    if !g.grid.fill_block(a, b, block) {
-        let v = g.grid.background.max(0.0) * s;
+    let s = g.density_scale();
+    if !g.fill_block(a, b, block) {
+        let v = g.background().max(0.0) * s;
         return (v, v);
     }
     // Tile interiors: a constant field.
@@ -484,7 +475,7 @@ struct Scratch {
 }
 
 /// Index-space bounding box of a world box.
-fn index_box(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
+fn index_box(g: &impl Field, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
     let mut ilo = DVec3::splat(f64::MAX);
     let mut ihi = DVec3::splat(f64::MIN);
     for k in 0..8 {
@@ -493,7 +484,7 @@ fn index_box(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
             if k & 2 == 0 { cmin.y } else { cmax.y },
             if k & 4 == 0 { cmin.z } else { cmax.z },
         );
-        let i = g.world_to_index.transform_point3(w.as_dvec3());
+        let i = g.world_to_index().transform_point3(w.as_dvec3());
         ilo = ilo.min(i);
         ihi = ihi.max(i);
     }
@@ -501,8 +492,8 @@ fn index_box(g: &GridMedium, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
 }
 
 /// Whether index space is world space scaled and shifted per axis (no rotation or shear).
-fn axis_aligned(g: &GridMedium) -> bool {
-    let m = g.world_to_index.matrix3;
+fn axis_aligned(g: &impl Field) -> bool {
+    let m = g.world_to_index().matrix3;
     let off_diagonal = [
         m.x_axis.y, m.x_axis.z, m.y_axis.x, m.y_axis.z, m.z_axis.x, m.z_axis.y,
     ];
@@ -616,6 +607,7 @@ pub fn root_span(t: &Octree, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
 mod tests {
     use super::*;
     use crate::media::procedural::{build, NoiseParams, Preset};
+    use crate::media::GridMedium;
     use crate::media::Phase;
     use crate::sampling::Rng;
     use glam::DAffine3;

@@ -1,16 +1,16 @@
 //! Heterogeneous media: a density grid placed in the world, sigma_t(x) = density_scale *
 //! density(x) (trilinear), with its own albedo and phase function.
-use glam::{DAffine3, DVec3, Vec3};
+use glam::{DAffine3, DVec3, IVec3, Vec3};
 use std::sync::Arc;
 
 use super::grid::Grid;
 use super::Phase;
+use crate::core::ray_box;
+use crate::core::Ray;
+use crate::core::Rgb;
 use crate::error::{Error, Result};
-use crate::geometry::Ray;
-use crate::majorant::{LeafBounds, Octree};
-use crate::media::homogeneous::ray_box;
-use crate::scene::Rgb;
-use crate::transport::freepath::Mode;
+use crate::majorant::Mode;
+use crate::majorant::{Field, LeafBounds, Octree};
 
 #[derive(Clone, Debug)]
 pub struct GridMedium {
@@ -74,6 +74,27 @@ impl GridMedium {
 
     pub fn interval(&self, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
         ray_box(ray, &self.bounds, 0.0, tmax)
+    }
+}
+
+impl Field for GridMedium {
+    fn bounds(&self) -> [Vec3; 2] {
+        self.bounds
+    }
+    fn world_to_index(&self) -> DAffine3 {
+        self.world_to_index
+    }
+    fn density_scale(&self) -> f32 {
+        self.density_scale
+    }
+    fn fill_block(&self, lo: IVec3, hi: IVec3, out: &mut Vec<f32>) -> bool {
+        self.grid.fill_block(lo, hi, out)
+    }
+    fn background(&self) -> f32 {
+        self.grid.background
+    }
+    fn source_hash(&self) -> [u8; 32] {
+        self.source_hash
     }
 }
 

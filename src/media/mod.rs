@@ -1,10 +1,14 @@
-//! Participating media: what the scene file describes ([`MediumDesc`]) and the combined
-//! extinction field the transport code samples ([`Media`]).
+//! Participating media: homogeneous boxes ([`MediumDesc`]) and density grids
+//! ([`Heterogeneous`], each owning its majorant octree), combined into the one extinction
+//! field the transport code samples ([`Media`]). Overlapping media add their extinction; a
+//! collision is attributed to one medium with probability sigma_t_i / sigma_t, which then
+//! decides albedo and phase function.
 pub mod blosc;
 pub mod grid;
 pub mod heterogeneous;
 pub mod homogeneous;
 pub mod nanovdb;
+pub mod octrees;
 pub mod openvdb;
 pub mod phase;
 pub mod procedural;
@@ -14,5 +18,308 @@ pub use heterogeneous::{GridMedium, Heterogeneous};
 /// What the file readers' byte parsers return: the value or what was wrong, to be wrapped
 /// with the file's name.
 pub type Parse<T> = std::result::Result<T, String>;
-pub use homogeneous::{Media, MediumDesc};
+pub use homogeneous::MediumDesc;
 pub use phase::Phase;
+
+use glam::Vec3;
+use smallvec::SmallVec;
+
+use crate::core::{ray_box, Ray, Rgb};
+
+/// A ray interval of constant total extinction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Piece {
+    pub t0: f32,
+    pub t1: f32,
+    pub sigma_t: f32,
+}
+
+/// Ray pieces, kept on the stack for the usual handful of media.
+pub type Pieces = SmallVec<[Piece; 4]>;
+
+/// All media of a scene, queried as one extinction field: homogeneous boxes (sampled and
+/// attenuated analytically) plus density grids (sampled by tracking).
+#[derive(Clone, Debug, Default)]
+pub struct Media {
+    pub media: Vec<MediumDesc>,
+    /// Density grids, each with its majorants.
+    pub grids: Vec<Heterogeneous>,
+}
+
+impl Media {
+    pub fn new(media: Vec<MediumDesc>) -> Self {
+        Media {
+            media,
+            grids: Vec::new(),
+        }
+    }
+
+    pub fn with_grids(media: Vec<MediumDesc>, grids: Vec<Heterogeneous>) -> Self {
+        Media { media, grids }
+    }
+
+    /// Homogeneous `media` and the `fields` with octrees `depth` levels deep baked now (no
+    /// cache: tests and in-memory scenes).
+    pub fn bake(media: Vec<MediumDesc>, fields: &[GridMedium], depth: u32) -> Self {
+        let grids = fields
+            .iter()
+            .map(|g| Heterogeneous::build(g.clone(), depth))
+            .collect();
+        Media { media, grids }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.media.is_empty() && self.grids.is_empty()
+    }
+
+    pub fn has_grids(&self) -> bool {
+        !self.grids.is_empty()
+    }
+
+    /// Union of the media boxes, if any.
+    pub fn bounds(&self) -> Option<[Vec3; 2]> {
+        let boxes = self.media.iter().map(|m| m.bounds);
+        boxes
+            .chain(self.grids.iter().map(|g| g.bounds))
+            .fold(None, |acc, b| {
+                Some(match acc {
+                    None => b,
+                    Some([lo, hi]) => [lo.min(b[0]), hi.max(b[1])],
+                })
+            })
+    }
+
+    /// Sum of the grids' extinction at `p` (1/m).
+    pub fn grid_sigma_t(&self, p: Vec3) -> f32 {
+        self.grids.iter().map(|g| g.sigma_t(p)).sum()
+    }
+
+    /// Whether the ray meets any grid's box over [0, tmax].
+    pub fn crosses_grids(&self, ray: &Ray, tmax: f32) -> bool {
+        self.grids.iter().any(|g| g.interval(ray, tmax).is_some())
+    }
+
+    /// The constant-extinction pieces of the ray inside any homogeneous medium, front to
+    /// back.
+    pub fn pieces(&self, ray: &Ray, tmax: f32) -> Pieces {
+        // One box (a scene's fog): its span is the only piece, no cuts to sort. Every
+        // light-path free path asks, so this is a share of free-path time.
+        let [m] = &self.media[..] else {
+            return self.swept_pieces(ray, tmax);
+        };
+        let mut out = Pieces::new();
+        if m.sigma_t > 0.0 {
+            if let Some((t0, t1)) = ray_box(ray, &m.bounds, 0.0, tmax) {
+                let sigma_t = m.sigma_t;
+                out.push(Piece { t0, t1, sigma_t });
+            }
+        }
+        out
+    }
+
+    /// [`Self::pieces`] for any number of boxes: a sweep over their sorted entry and exit
+    /// distances.
+    fn swept_pieces(&self, ray: &Ray, tmax: f32) -> Pieces {
+        let mut out = Pieces::new();
+        let spans: SmallVec<[(f32, f32, f32); 4]> = self
+            .media
+            .iter()
+            .filter_map(|m| ray_box(ray, &m.bounds, 0.0, tmax).map(|(a, b)| (a, b, m.sigma_t)))
+            .collect();
+        let mut cuts: SmallVec<[f32; 8]> = spans.iter().flat_map(|s| [s.0, s.1]).collect();
+        cuts.sort_by(f32::total_cmp);
+        push_pieces(&cuts, &spans, &mut out);
+        out
+    }
+
+    /// Merged spans of the ray inside any medium box (homogeneous or grid), front to back.
+    pub fn spans(&self, ray: &Ray, tmax: f32) -> SmallVec<[(f32, f32); 4]> {
+        self.padded_spans(ray, tmax, 0.0)
+    }
+
+    /// [`Self::spans`] with each box's span widened by `pad` (m) on both sides, within
+    /// [0, tmax], before spans that then overlap are merged.
+    pub fn padded_spans(&self, ray: &Ray, tmax: f32, pad: f32) -> SmallVec<[(f32, f32); 4]> {
+        let mut spans: SmallVec<[(f32, f32); 4]> = self
+            .media
+            .iter()
+            .map(|m| m.bounds)
+            .chain(self.grids.iter().map(|g| g.bounds))
+            .filter_map(|b| ray_box(ray, &b, 0.0, tmax))
+            .map(|(a, b)| ((a - pad).max(0.0), (b + pad).min(tmax)))
+            .collect();
+        spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut out: SmallVec<[(f32, f32); 4]> = SmallVec::new();
+        for (a, b) in spans {
+            match out.last_mut() {
+                Some(last) if a <= last.1 => last.1 = last.1.max(b),
+                _ => out.push((a, b)),
+            }
+        }
+        out
+    }
+
+    /// Integral of the homogeneous media's sigma_t along the ray over [t0, t1].
+    pub fn optical_depth(&self, ray: &Ray, t0: f32, t1: f32) -> f32 {
+        self.media
+            .iter()
+            .filter_map(|m| ray_box(ray, &m.bounds, t0, t1).map(|(a, b)| (b - a) * m.sigma_t))
+            .sum()
+    }
+
+    /// Total extinction at `p` (1/m).
+    pub fn sigma_t(&self, p: Vec3) -> f32 {
+        self.homogeneous_sigma_t(p) + self.grid_sigma_t(p)
+    }
+
+    fn homogeneous_sigma_t(&self, p: Vec3) -> f32 {
+        self.media
+            .iter()
+            .filter(|m| contains(&m.bounds, p))
+            .map(|m| m.sigma_t)
+            .sum()
+    }
+
+    /// sum_i sigma_s,i(p) * phase_i(cos): what a beam estimate multiplies by (1/(m sr)).
+    pub fn in_scatter(&self, p: Vec3, cos_theta: f32) -> Rgb {
+        self.components(p)
+            .map(|(s, albedo, phase)| albedo * (s * phase.eval(cos_theta)))
+            .fold(Vec3::ZERO, |a, b| a + b)
+    }
+
+    /// (sigma_t, albedo, phase) of every medium present at `p`.
+    fn components(&self, p: Vec3) -> impl Iterator<Item = (f32, Rgb, Phase)> + '_ {
+        let hom = self
+            .media
+            .iter()
+            .filter(move |m| contains(&m.bounds, p))
+            .map(|m| (m.sigma_t, m.albedo, m.phase));
+        let grids = self
+            .grids
+            .iter()
+            .map(move |g| (g.sigma_t(p), g.albedo, g.phase))
+            .filter(|c| c.0 > 0.0);
+        hom.chain(grids)
+    }
+
+    /// Albedo and phase function of the medium a collision at `p` belongs to, chosen with
+    /// probability sigma_t,i / sigma_t.
+    pub fn pick_collider(&self, p: Vec3, u: f32) -> Option<(Rgb, Phase)> {
+        // A lone grid is the collider: a collision in it has sigma_t > 0 there (a tracking
+        // lookup or a positive minorant said so), so the two lookups below would pick it.
+        if let ([], [g]) = (self.media.as_slice(), self.grids.as_slice()) {
+            return Some((g.albedo, g.phase));
+        }
+        let total = self.sigma_t(p);
+        let mut target = u * total;
+        let mut last = None;
+        for (s, albedo, phase) in self.components(p) {
+            last = Some((albedo, phase));
+            if target < s {
+                return last;
+            }
+            target -= s;
+        }
+        last
+    }
+}
+
+fn contains(b: &[Vec3; 2], p: Vec3) -> bool {
+    p.cmpge(b[0]).all() && p.cmple(b[1]).all()
+}
+
+fn push_pieces(cuts: &[f32], spans: &[(f32, f32, f32)], out: &mut Pieces) {
+    for w in cuts.windows(2) {
+        let (t0, t1) = (w[0], w[1]);
+        if t1 <= t0 {
+            continue;
+        }
+        let mid = 0.5 * (t0 + t1);
+        let sigma_t: f32 = spans
+            .iter()
+            .filter(|s| s.0 <= mid && mid <= s.1)
+            .map(|s| s.2)
+            .sum();
+        if sigma_t > 0.0 {
+            match out.last_mut() {
+                Some(last) if last.t1 == t0 && last.sigma_t == sigma_t => last.t1 = t1,
+                _ => out.push(Piece { t0, t1, sigma_t }),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fog(lo: [f32; 3], hi: [f32; 3], s: f32) -> MediumDesc {
+        MediumDesc {
+            bounds: [Vec3::from(lo), Vec3::from(hi)],
+            sigma_t: s,
+            albedo: Vec3::ONE,
+            phase: Phase::ISOTROPIC,
+        }
+    }
+
+    /// Padding widens each box's span within [0, tmax] and merges spans it makes overlap.
+    #[test]
+    fn padded_spans_merge_and_clamp() {
+        let media = Media::new(vec![
+            fog([0.0, -1.0, -1.0], [1.0, 1.0, 1.0], 1.0),
+            fog([1.3, -1.0, -1.0], [2.0, 1.0, 1.0], 1.0),
+        ]);
+        let ray = Ray::new(Vec3::new(-0.1, 0.0, 0.0), Vec3::X);
+        let near = |a: &[(f32, f32)], b: &[(f32, f32)]| {
+            a.len() == b.len()
+                && a.iter()
+                    .zip(b)
+                    .all(|(x, y)| (x.0 - y.0).abs() < 1e-5 && (x.1 - y.1).abs() < 1e-5)
+        };
+        let plain = media.spans(&ray, 1.8);
+        assert!(near(&plain, &[(0.1, 1.1), (1.4, 1.8)]), "{plain:?}");
+        let padded = media.padded_spans(&ray, 1.8, 0.2);
+        assert!(near(&padded, &[(0.0, 1.8)]), "{padded:?}");
+        let thin = media.padded_spans(&ray, 10.0, 0.1);
+        assert!(near(&thin, &[(0.0, 1.2), (1.3, 2.2)]), "{thin:?}");
+    }
+
+    /// The one-box shortcut of `pieces` gives the sweep's pieces exactly, over rays that
+    /// start inside, outside, miss, or stop in the box, and for a box without extinction.
+    #[test]
+    fn one_box_pieces_match_the_sweep() {
+        let mut rng = crate::sampling::Rng::new(5, 0);
+        for sigma_t in [0.0, 0.02, 3.0] {
+            let media = Media::new(vec![fog([-1.0, 0.0, -2.0], [2.0, 1.5, 1.0], sigma_t)]);
+            let mut v = || Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
+            for _ in 0..2000 {
+                let (o, d) = (v() * 4.0, v().normalize_or(Vec3::X));
+                let ray = Ray::new(o, d);
+                let tmax = (v().x + 1.0) * 5.0;
+                let (fast, swept) = (media.pieces(&ray, tmax), media.swept_pieces(&ray, tmax));
+                assert_eq!(fast.len(), swept.len(), "{ray:?} {tmax}");
+                for (a, b) in fast.iter().zip(swept.iter()) {
+                    assert_eq!((a.t0, a.t1, a.sigma_t), (b.t0, b.t1, b.sigma_t));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn overlapping_media_add() {
+        let media = Media::new(vec![
+            fog([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], 1.0),
+            fog([0.0, -1.0, -1.0], [3.0, 1.0, 1.0], 2.0),
+        ]);
+        let ray = Ray::new(Vec3::new(-5.0, 0.0, 0.0), Vec3::X);
+        let seg = media.pieces(&ray, 100.0);
+        let expect = [(4.0, 5.0, 1.0), (5.0, 6.0, 3.0), (6.0, 8.0, 2.0)];
+        assert_eq!(seg.len(), 3);
+        for (s, e) in seg.iter().zip(expect) {
+            assert!((s.t0 - e.0).abs() < 1e-5 && (s.t1 - e.1).abs() < 1e-5 && s.sigma_t == e.2);
+        }
+        let tau = media.optical_depth(&ray, 0.0, 100.0);
+        assert!((tau - (2.0 + 6.0)).abs() < 1e-4);
+        assert_eq!(media.sigma_t(Vec3::new(0.5, 0.0, 0.0)), 3.0);
+    }
+}

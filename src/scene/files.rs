@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, SystemTime};
 
+use crate::core::frames;
 use crate::error::{Error, Result};
 
 /// How much older than its hashing a file's modification time must be for the memo to
@@ -93,7 +94,7 @@ impl Files {
     /// `path` with the frame token replaced by the load's frame, if it has one.
     pub fn at_frame(&self, path: &str) -> String {
         match self.frame() {
-            Some(f) if crate::farm::frames::has_token(path) => crate::farm::with_frame(path, f),
+            Some(f) if frames::has_token(path) => frames::with_frame(path, f),
             _ => path.to_string(),
         }
     }

@@ -15,10 +15,8 @@ pub use format::Format;
 
 use glam::Vec3;
 
+use crate::core::Rgb;
 use crate::media::{GridMedium, MediumDesc};
-
-/// Linear RGB triple (radiance, power, reflectance, albedo).
-pub type Rgb = Vec3;
 
 /// Pinhole camera as SPEC.md defines it (vertical field of view).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -115,31 +113,6 @@ impl Default for Camera {
             target: Vec3::ZERO,
             up: Vec3::Y,
             vfov_deg: 40.0,
-        }
-    }
-}
-
-impl Light {
-    /// Total emitted power (W per channel); `scene_radius` bounds what a directional light lights.
-    pub fn power(&self, scene_radius: f32) -> Rgb {
-        use std::f32::consts::PI;
-        match *self {
-            Light::Point { intensity, .. } => intensity * 4.0 * PI,
-            Light::Spot {
-                intensity,
-                inner_deg,
-                outer_deg,
-                ..
-            } => {
-                // Linear falloff in cos: the cone's mean is the midpoint of the two cosines.
-                let ci = inner_deg.to_radians().cos();
-                let co = outer_deg.to_radians().cos();
-                intensity * 2.0 * PI * (1.0 - 0.5 * (ci + co))
-            }
-            Light::Directional { irradiance, .. } => irradiance * PI * scene_radius * scene_radius,
-            Light::Sphere {
-                radius, radiance, ..
-            } => radiance * PI * 4.0 * PI * radius * radius,
         }
     }
 }

@@ -8,13 +8,11 @@ use super::assets::AssetCache;
 use super::grids::GridFile;
 use super::medium::{toml_field, MediumSpec, TransformSpec};
 use super::{Camera, Format, Imported, Light, Material, NamedMaterial, Scene};
+use crate::core::frames::{self, at_frame};
 use crate::error::{Error, Result};
-use crate::farm::frames;
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc};
 use crate::settings::{Radius, RenderSettings};
-use crate::transport::direct::MAX_NEE_SAMPLES;
-use crate::transport::transmittance::{MAX_TR_BLOCK, MAX_TR_SAMPLES};
 use clap::ValueEnum;
 use glam::DAffine3;
 
@@ -274,19 +272,12 @@ pub fn load_cached(path: &Path, cache: &mut AssetCache) -> Result<SceneFile> {
     load_with(path, cache, None)
 }
 
-/// Frame `frame` of a scene: the frame token (a run of `#`, see [`crate::farm::frames`])
+/// Frame `frame` of a scene: the frame token (a run of `#`, see [`crate::core::frames`])
 /// in the scene's path and in the paths it names (imports, meshes, grid media) becomes
 /// the frame number. Without a frame, paths are taken as written.
 pub fn load_frame(path: &Path, frame: Option<u32>) -> Result<SceneFile> {
     let path = at_frame(path, frame);
     load_with(&path, &mut AssetCache::new(), frame)
-}
-
-fn at_frame(path: &Path, frame: Option<u32>) -> PathBuf {
-    match (frame, path.to_str()) {
-        (Some(f), Some(s)) if frames::has_token(s) => PathBuf::from(frames::with_frame(s, f)),
-        _ => path.to_path_buf(),
-    }
 }
 
 /// Checks, before any work starts, that every file a frame's paths name exists for every
@@ -553,44 +544,8 @@ fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettings> {
         method: ck.word("render.method", r.method.as_deref(), d.method)?,
         ..d
     };
-    if s.tr_block == 0
-        || s.tr_block > MAX_TR_BLOCK
-        || !s.tr_block.is_multiple_of(s.tr_samples.max(1))
-    {
-        return Err(ck.err(
-            "render.tr_block",
-            format!(
-                "expected a multiple of tr_samples in 1..={MAX_TR_BLOCK}, got {}",
-                s.tr_block
-            ),
-        ));
-    }
-    if !(1..=MAX_TR_SAMPLES).contains(&s.tr_samples) {
-        return Err(ck.err(
-            "render.tr_samples",
-            format!("expected 1..={MAX_TR_SAMPLES}, got {}", s.tr_samples),
-        ));
-    }
-    if !(1..=MAX_NEE_SAMPLES).contains(&s.nee_samples) {
-        return Err(ck.err(
-            "render.nee_samples",
-            format!("expected 1..={MAX_NEE_SAMPLES}, got {}", s.nee_samples),
-        ));
-    }
-    if let Some((field, msg)) = s.limits_error() {
-        return Err(ck.err(&format!("render.{field}"), msg));
-    }
-    for (field, a) in [
-        ("render.alpha", s.alpha),
-        ("render.photon_alpha", s.photon_alpha),
-    ] {
-        if !(a > 0.0 && a < 1.0) {
-            return Err(ck.err(field, format!("expected a number in (0, 1), got {a}")));
-        }
-    }
-    if !s.exposure.is_finite() {
-        return Err(ck.err("render.exposure", "expected a finite number".into()));
-    }
+    s.validate()
+        .map_err(|e| ck.err(&format!("render.{}", e.field), e.msg))?;
     Ok(s)
 }
 

@@ -9,15 +9,18 @@ use rayon::prelude::*;
 use super::direct::Direct;
 use super::freepath::FreePath;
 use super::light::enters_glass;
-use super::transmittance::{SegmentTr, StratPixel, StratStore, TrMode, MAX_TR_BLOCK};
+use super::transmittance::camera_tr;
+use super::transmittance::{SegmentTr, StratPixel, StratStore};
+use super::SurfaceEstimate;
 use super::{timed, Counters};
 use crate::bsdf;
-use crate::estimate::eq2::camera_tr;
-use crate::estimate::photons::Photons;
-use crate::geometry::{Geometry, Ray, Surface, EPS};
+use crate::core::Ray;
+use crate::core::Rgb;
+use crate::geometry::{Geometry, Hit, Surface, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
-use crate::scene::{Camera, Material, Rgb};
+use crate::scene::{Camera, Material};
+use crate::settings::{TrMode, MAX_TR_BLOCK};
 
 /// Longest chain of specular bounces a camera path follows.
 pub const MAX_SPECULAR: u32 = 64;
@@ -211,7 +214,8 @@ pub struct CameraTracer<'a> {
     /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
     pub tr_mode: TrMode,
-    pub photons: &'a Photons,
+    /// Radiance stored on surfaces (the photon maps), gathered at diffuse hits.
+    pub photons: &'a dyn SurfaceEstimate,
     /// Next-event estimation of direct light (the hybrid method), or None (pure PPB).
     pub direct: Option<Direct<'a>>,
 }
@@ -342,37 +346,7 @@ impl CameraTracer<'_> {
         while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
-            let (primary, strat) = match first.take() {
-                Some((p, s)) => (Some(p), s),
-                None => (None, None),
-            };
-            let gtr = self.grid_transmittance(&ray, t_surf, st.in_glass, rng, c, strat);
-            // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
-            let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
-                self.media.spans(&ray, t_surf)
-            } else {
-                Default::default()
-            };
-            if let (Some(d), false) = (&self.direct, spans.is_empty()) {
-                let tr = |t| camera_tr(self.media, &ray, &gtr, t);
-                l += st.beta * d.along(&ray, t_surf, &spans, tr, rng, c);
-            }
-            if let Some(p) = primary {
-                p.t_surf = t_surf;
-                p.tr = gtr.clone();
-            } else if !spans.is_empty() {
-                out.segments.push(Secondary {
-                    pixel: out.pixel,
-                    ray,
-                    t_surf,
-                    beta: st.beta,
-                    tr: gtr.clone(),
-                });
-            }
-            if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
-                let tau = self.media.optical_depth(&ray, 0.0, t_surf);
-                st.beta *= (-tau).exp() * gtr.eval(t_surf);
-            }
+            l += self.segment(&ray, t_surf, &mut st, first.take(), rng, c, out);
             let Some(h) = hit else { break };
             let material = match h.surface {
                 Surface::Emitter(le) => {
@@ -382,14 +356,7 @@ impl CameraTracer<'_> {
                 Surface::Material(m) => m,
             };
             if let Material::Lambert { reflectance } = material {
-                let n = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
-                let mut lo = self
-                    .photons
-                    .radiance(h.p, n, reflectance, &mut c.photon_lookups);
-                if let Some(d) = &self.direct {
-                    lo += d.at_surface(h.p, n, reflectance, rng, c);
-                }
-                l += st.beta * lo;
+                l += st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
                 break;
             }
             st.depth += 1;
@@ -416,6 +383,65 @@ impl CameraTracer<'_> {
         l
     }
 
+    /// One camera segment [0, t_surf) of `ray`: its transmittance estimate, direct light
+    /// along it (NEE), its record for the beam estimate (`first`'s primary, or a secondary
+    /// in `out`), and the path weight attenuated to its end. Returns the direct light.
+    #[allow(clippy::too_many_arguments)]
+    fn segment(
+        &self,
+        ray: &Ray,
+        t_surf: f32,
+        st: &mut PathState,
+        first: Option<(&mut Primary, Option<StratPixel>)>,
+        rng: &mut Rng,
+        c: &mut Counters,
+        out: &mut Out,
+    ) -> Rgb {
+        let (primary, strat) = match first {
+            Some((p, s)) => (Some(p), s),
+            None => (None, None),
+        };
+        let gtr = self.grid_transmittance(ray, t_surf, st.in_glass, rng, c, strat);
+        // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
+        let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
+            self.media.spans(ray, t_surf)
+        } else {
+            Default::default()
+        };
+        let mut l = Rgb::ZERO;
+        if let (Some(d), false) = (&self.direct, spans.is_empty()) {
+            let tr = |t| camera_tr(self.media, ray, &gtr, t);
+            l = st.beta * d.along(ray, t_surf, &spans, tr, rng, c);
+        }
+        let beta = st.beta;
+        if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
+            let tau = self.media.optical_depth(ray, 0.0, t_surf);
+            st.beta *= (-tau).exp() * gtr.eval(t_surf);
+        }
+        record(ray, t_surf, beta, gtr, primary, &spans, out);
+        l
+    }
+
+    /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate plus,
+    /// in the hybrid method, direct light by a shadow ray.
+    fn diffuse(
+        &self,
+        h: &Hit,
+        dir: Vec3,
+        reflectance: Rgb,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> Rgb {
+        let n = if dir.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
+        let mut lo = self
+            .photons
+            .radiance(h.p, n, reflectance, &mut c.photon_lookups);
+        if let Some(d) = &self.direct {
+            lo += d.at_surface(h.p, n, reflectance, rng, c);
+        }
+        lo
+    }
+
     /// The grid part of the transmittance along a camera segment (clear when the segment
     /// misses every grid or runs inside glass).
     fn grid_transmittance(
@@ -439,6 +465,32 @@ impl CameraTracer<'_> {
         });
         (c.timing_ticks, c.transmittance_seconds) = (tick, secs);
         tr
+    }
+}
+
+/// Keeps a segment for the beam estimate: the primary's distance and transmittance, or
+/// a secondary (with `beta`, the weight at its origin) when it crosses media.
+#[allow(clippy::too_many_arguments)]
+fn record(
+    ray: &Ray,
+    t_surf: f32,
+    beta: Rgb,
+    tr: SegmentTr,
+    primary: Option<&mut Primary>,
+    spans: &[(f32, f32)],
+    out: &mut Out,
+) {
+    if let Some(p) = primary {
+        p.t_surf = t_surf;
+        p.tr = tr;
+    } else if !spans.is_empty() {
+        out.segments.push(Secondary {
+            pixel: out.pixel,
+            ray: *ray,
+            t_surf,
+            beta,
+            tr,
+        });
     }
 }
 

@@ -6,110 +6,19 @@
 //! segment and the photons it ends in), so both halves add up to the same radiance as the
 //! pure method. Surfaces block shadow rays, dielectrics included: light through glass
 //! stays with the photons and beams.
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use smallvec::SmallVec;
 use std::f32::consts::PI;
 
 use super::freepath::FreePath;
-use super::light::{spot_falloff, LightSampler};
+use super::light::LightSampler;
 use super::Counters;
-use crate::geometry::{Geometry, Ray, EPS};
+use crate::core::Ray;
+use crate::core::Rgb;
+use crate::geometry::{Geometry, EPS};
 use crate::media::Media;
-use crate::sampling::{uniform_cone, Rng};
-use crate::scene::{Light, Rgb};
-
-/// A light seen from a point: the unit direction towards the sampled point of the light,
-/// its distance (infinite for a directional light), and the radiance arriving along it
-/// divided by the sample's solid-angle density (for delta lights: intensity / d^2, or
-/// irradiance), before any transmittance.
-#[derive(Clone, Copy, Debug)]
-pub struct LightSample {
-    pub dir: Vec3,
-    pub dist: f32,
-    pub value: Rgb,
-}
-
-/// Samples `light` as seen from `x` (None where it sends nothing to `x`).
-pub fn sample_light(light: &Light, x: Vec3, u: Vec2) -> Option<LightSample> {
-    match *light {
-        Light::Point {
-            position,
-            intensity,
-        } => towards(position, x, intensity),
-        Light::Spot {
-            position,
-            direction,
-            intensity,
-            inner_deg,
-            outer_deg,
-        } => {
-            let s = towards(position, x, intensity)?;
-            let falloff = spot_falloff(direction, inner_deg, outer_deg, -s.dir);
-            (falloff > 0.0).then(|| LightSample {
-                value: s.value * falloff,
-                ..s
-            })
-        }
-        Light::Directional {
-            direction,
-            irradiance,
-        } => Some(LightSample {
-            dir: -direction,
-            dist: f32::INFINITY,
-            value: irradiance,
-        }),
-        Light::Sphere {
-            center,
-            radius,
-            radiance,
-        } => sphere(center, radius, radiance, x, u),
-    }
-}
-
-/// Where equiangular sampling should aim for `light` (None for a directional light).
-pub fn anchor(light: &Light) -> Option<Vec3> {
-    match *light {
-        Light::Point { position, .. } | Light::Spot { position, .. } => Some(position),
-        Light::Sphere { center, .. } => Some(center),
-        Light::Directional { .. } => None,
-    }
-}
-
-fn towards(position: Vec3, x: Vec3, intensity: Rgb) -> Option<LightSample> {
-    let v = position - x;
-    let d2 = v.length_squared();
-    (d2 > 0.0).then(|| {
-        let dist = d2.sqrt();
-        LightSample {
-            dir: v / dist,
-            dist,
-            value: intensity / d2,
-        }
-    })
-}
-
-/// Uniform direction in the cone the sphere subtends from `x`, to the near side.
-fn sphere(center: Vec3, radius: f32, radiance: Rgb, x: Vec3, u: Vec2) -> Option<LightSample> {
-    let v = center - x;
-    let d2 = v.length_squared();
-    let r2 = radius * radius;
-    if d2 <= r2 {
-        return None;
-    }
-    let d = d2.sqrt();
-    let axis = v / d;
-    let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
-    let dir = uniform_cone(axis, cos_max, u);
-    // Distance to the sphere along dir (the nearer root; clamped at the tangent).
-    let b = dir.dot(v);
-    let dist = b - (b * b - (d2 - r2)).max(0.0).sqrt();
-    let solid_angle = 2.0 * PI * (1.0 - cos_max);
-    Some(LightSample {
-        dir,
-        dist,
-        value: radiance * solid_angle,
-    })
-}
+use crate::sampling::Rng;
+use crate::scene::Light;
 
 /// Equiangular sampling (Kulla and Fajardo 2012) of t in [a, b] along `ray` for a light at
 /// `c`: density proportional to 1 / distance^2 to `c`. Returns (t, pdf).
@@ -188,12 +97,6 @@ fn majorant_rates(fp: &FreePath, ray: &Ray, tmax: f32) -> Rates {
     out
 }
 
-/// Most light samples per camera segment (`--nee-samples`).
-pub const MAX_NEE_SAMPLES: usize = 64;
-/// Default light samples per camera segment: on smoke-grid at 48 passes, 4 stratified
-/// samples cut the smoke's error by a third for 19 % more time (README, "Direct light").
-pub const DEFAULT_NEE_SAMPLES: usize = 4;
-
 /// A camera segment as [`Direct::along`] samples it: [0, t_surf) of `ray`, its media
 /// spans, and its majorant rates once some sample needed them.
 struct Segment<'a> {
@@ -246,7 +149,7 @@ impl Direct<'_> {
             return Rgb::ZERO;
         };
         let origin = p + n * EPS;
-        let Some(s) = sample_light(light, origin, rng.vec2()) else {
+        let Some(s) = light.sample(origin, rng.vec2()) else {
             return Rgb::ZERO;
         };
         let cos = n.dot(s.dir);
@@ -304,7 +207,7 @@ impl Direct<'_> {
         };
         let ray = seg.ray;
         let mut l = Rgb::ZERO;
-        match anchor(light) {
+        match light.anchor() {
             Some(at) => {
                 for &(a, b) in seg.spans {
                     let u = (start + width * rng.f32()).min(ONE_BELOW);
@@ -337,7 +240,7 @@ impl Direct<'_> {
         c: &mut Counters,
     ) -> Rgb {
         let x = ray.at(t);
-        let Some(s) = sample_light(light, x, rng.vec2()) else {
+        let Some(s) = light.sample(x, rng.vec2()) else {
             return Rgb::ZERO;
         };
         // Light travels along -dir, and on towards the camera along -ray.d.
@@ -356,8 +259,8 @@ impl Direct<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::majorant::Mode;
     use crate::media::{MediumDesc, Phase};
-    use crate::transport::freepath::Mode;
 
     /// Equiangular samples weighted by 1/pdf integrate 1/(D^2 + s^2) exactly: the
     /// estimator has zero variance for that integrand.

@@ -5,12 +5,16 @@
 //! collisions over them and asks the caller at each one, so delta tracking and ratio
 //! tracking (and any later user) share it. Extinctions add, so a collision is the nearest
 //! of the parts' free paths.
-use crate::geometry::Ray;
-use crate::majorant::LeafBounds;
+use smallvec::SmallVec;
+
+use crate::core::Ray;
+use crate::majorant::{LeafBounds, Mode};
 use crate::media::{Heterogeneous, Media};
 use crate::sampling::Rng;
-use crate::transport::transmittance::RatioSteps;
 use crate::transport::Counters;
+
+/// Ratio-tracking steps: (t_k, factor or, once cumulated, Tr just after t_k).
+pub type RatioSteps = SmallVec<[(f32, f32); 8]>;
 
 /// The free-path sampler of a pass: the media and which majorants the grids use.
 #[derive(Clone, Copy)]
@@ -178,15 +182,6 @@ impl FreePath<'_> {
         }
         tr
     }
-}
-
-/// Which free-path sampler light paths and camera transmittance use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Mode {
-    /// Delta tracking per octree leaf (the paper's method; the default).
-    Adaptive,
-    /// Delta tracking with one global majorant (the paper's baseline).
-    Woodcock,
 }
 
 #[cfg(test)]

@@ -1,17 +1,18 @@
 //! Light tracing: paths from the lights, chosen by power, stored as beams in media and as
 //! photons on Lambert surfaces.
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
+use super::emitters::Emission;
 use super::freepath::FreePath;
 use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
-use crate::geometry::{Geometry, Ray, Surface, EPS};
+use crate::core::Ray;
+use crate::core::Rgb;
+use crate::geometry::{Geometry, Surface, EPS};
 use crate::media::Media;
-use crate::sampling::{
-    cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_disk, uniform_sphere, Rng, Stream,
-};
-use crate::scene::{Light, Material, Rgb};
+use crate::sampling::{Rng, Stream};
+use crate::scene::{Light, Material};
 
 /// Lights with a discrete distribution proportional to their power.
 pub struct LightSampler {
@@ -20,13 +21,6 @@ pub struct LightSampler {
     /// Sphere bounding everything a directional light must cover.
     scene_center: Vec3,
     scene_radius: f32,
-}
-
-/// One emitted photon: where it starts, where it goes and its power (W).
-pub struct Emission {
-    pub origin: Vec3,
-    pub dir: Vec3,
-    pub power: Rgb,
 }
 
 impl LightSampler {
@@ -73,58 +67,11 @@ impl LightSampler {
         let (light, prob) = self.pick(rng.f32())?;
         let u1 = rng.vec2();
         let u2 = rng.vec2();
-        let e = self.emit_from(light, u1, u2);
+        let e = light.emit(self.scene_center, self.scene_radius, u1, u2);
         Some(Emission {
             power: e.power / prob,
             ..e
         })
-    }
-
-    fn emit_from(&self, light: &Light, u1: Vec2, u2: Vec2) -> Emission {
-        let power = light.power(self.scene_radius);
-        match *light {
-            Light::Point { position, .. } => Emission {
-                origin: position,
-                dir: uniform_sphere(u1),
-                power,
-            },
-            Light::Spot {
-                position,
-                direction,
-                intensity,
-                inner_deg,
-                outer_deg,
-            } => {
-                let cos_outer = outer_deg.to_radians().cos();
-                let dir = uniform_cone(direction, cos_outer, u1);
-                let falloff = spot_falloff(direction, inner_deg, outer_deg, dir);
-                let solid_angle = 2.0 * std::f32::consts::PI * (1.0 - cos_outer);
-                Emission {
-                    origin: position,
-                    dir,
-                    power: intensity * falloff * solid_angle,
-                }
-            }
-            Light::Directional { direction, .. } => {
-                let (t, b) = orthonormal_basis(direction);
-                let d = uniform_disk(u1) * self.scene_radius;
-                Emission {
-                    origin: self.scene_center - direction * self.scene_radius * 1.01
-                        + t * d.x
-                        + b * d.y,
-                    dir: direction,
-                    power,
-                }
-            }
-            Light::Sphere { center, radius, .. } => {
-                let n = uniform_sphere(u1);
-                Emission {
-                    origin: center + n * (radius + EPS),
-                    dir: cosine_hemisphere(n, u2),
-                    power,
-                }
-            }
-        }
     }
 }
 
@@ -270,14 +217,6 @@ impl LightTracer<'_> {
             out.counters.beams += 1;
         }
     }
-}
-
-/// Spot falloff along emission direction `w`: full inside `inner_deg`, linear in cos to
-/// zero at `outer_deg` (what the light tracer emits).
-pub fn spot_falloff(axis: Vec3, inner_deg: f32, outer_deg: f32, w: Vec3) -> f32 {
-    let cos_outer = outer_deg.to_radians().cos();
-    let cos_inner = inner_deg.to_radians().cos();
-    ((w.dot(axis) - cos_outer) / (cos_inner - cos_outer).max(1e-6)).clamp(0.0, 1.0)
 }
 
 /// Whether a path leaving a surface along `dir` travels inside a dielectric: meshes are

@@ -12,34 +12,15 @@
 //!   (1 - sigma_t(x) / majorant), averaged over M independent trackings. One estimate
 //!   weights every beam crossing of its segment in a pass, so its noise is shared by all
 //!   of them; M = 4 makes a pass about 15 % slower on cloud-hg and smoke-grid and still
-//!   gave the lowest error at equal time (README, "Camera transmittance").
+//!   gave the lowest error at equal time (docs/benchmarks.md, "Camera transmittance").
 use smallvec::SmallVec;
 
-use crate::geometry::Ray;
+use crate::core::Ray;
+use crate::media::Media;
 use crate::sampling::Rng;
-use crate::transport::freepath::FreePath;
+use crate::settings::MAX_TR_SAMPLES;
+use crate::transport::freepath::{FreePath, RatioSteps};
 use crate::transport::Counters;
-
-/// Most free paths per camera segment (`--tr-samples`).
-pub const MAX_TR_SAMPLES: usize = 16;
-/// Default free paths per camera segment per pass (M in the paper).
-pub const DEFAULT_TR_SAMPLES: usize = 4;
-/// Default and largest stratified block (N passes' free paths drawn at once).
-pub const DEFAULT_TR_BLOCK: usize = 64;
-pub const MAX_TR_BLOCK: usize = 64;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum TrMode {
-    /// M free paths per pass (the progressive deep shadow map).
-    Random,
-    /// The paper's estimator: free paths of a block of passes drawn at once, M strata.
-    Stratified,
-    /// Ratio tracking on the octree's local majorants (the default).
-    Ratio,
-}
-
-/// Ratio-tracking steps: (t_k, factor or, once cumulated, Tr just after t_k).
-pub type RatioSteps = SmallVec<[(f32, f32); 8]>;
 
 /// One pass's estimate of the grids' transmittance along one camera segment.
 #[derive(Clone, Debug)]
@@ -248,12 +229,20 @@ impl StratPixel<'_> {
     }
 }
 
+/// The camera-transmittance factor of eq. 2: transmittance from the origin of a camera
+/// segment's `ray` to t, the homogeneous media's exact exp(-tau) times this pass's
+/// estimate `grids` of the density grids' share (`SegmentTr::eval`).
+pub fn camera_tr(media: &Media, ray: &Ray, grids: &SegmentTr, t: f32) -> f32 {
+    (-media.optical_depth(ray, 0.0, t)).exp() * grids.eval(t)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::majorant::Mode;
     use crate::media::grid::GridBuilder;
     use crate::media::{GridMedium, Heterogeneous, Media, Phase};
-    use crate::transport::freepath::{FreePath, Mode};
+    use crate::transport::freepath::FreePath;
     use glam::{DAffine3, IVec3, Vec3};
     use std::sync::Arc;
 
@@ -380,8 +369,9 @@ mod tests {
 mod adaptive_tests {
     use super::tests::{ramp_media, ramp_media_with, QuadTr};
     use super::*;
+    use crate::majorant::Mode;
     use crate::transport::freepath::tests::ks_against;
-    use crate::transport::freepath::{FreePath, Mode};
+    use crate::transport::freepath::FreePath;
     use glam::Vec3;
 
     /// Adaptive free paths follow the quadrature transmittance (KS, 0.1 % level), and
@@ -469,7 +459,8 @@ mod adaptive_tests {
 mod estimator_tests {
     use super::tests::{ramp_media, QuadTr};
     use super::*;
-    use crate::transport::freepath::{FreePath, Mode};
+    use crate::majorant::Mode;
+    use crate::transport::freepath::FreePath;
     use glam::Vec3;
 
     fn setup() -> (crate::media::Media, Ray) {

@@ -7,7 +7,8 @@ use crate::settings::RenderSettings;
 /// The parts of a scene that differ between two loads.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Changes {
-    /// Render settings other than the exposure.
+    /// Render settings that change pixels ([`RenderSettings::pixel_key`]); a new pass
+    /// count only moves where the render stops.
     pub settings: bool,
     /// Only tone mapping: the accumulated image stays valid.
     pub exposure: bool,
@@ -31,12 +32,8 @@ impl Changes {
         new: &Scene,
         new_s: &RenderSettings,
     ) -> Self {
-        let same_but_exposure = RenderSettings {
-            exposure: new_s.exposure,
-            ..old_s.clone()
-        } == *new_s;
         Changes {
-            settings: !same_but_exposure,
+            settings: old_s.pixel_key() != new_s.pixel_key(),
             exposure: old_s.exposure != new_s.exposure,
             camera: old.camera != new.camera,
             lights: old.lights != new.lights,

@@ -1,6 +1,5 @@
-//! The reusable parts of `ppb watch`: which files a scene depends on ([`deps`]), what an
-//! edit changed ([`diff`]) and octree reuse across reloads ([`octrees`]). The loop, the
-//! status line and the window live in the binary.
+//! The reusable parts of `ppb watch`: which files a scene depends on ([`deps`]) and what an
+//! edit changed ([`diff`]). Octree reuse across reloads is the media builder's
+//! (`media::octrees`); the loop, the status line and the window live in the binary.
 pub mod deps;
 pub mod diff;
-pub mod octrees;

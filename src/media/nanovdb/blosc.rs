@@ -1,7 +1,6 @@
 //! NanoVDB's BLOSC codec: a grid is stored as chunks of at most 1 GiB, each a u64 byte
 //! count and one blosc1 frame, decoded by the shared [`crate::media::blosc`] decoder.
-use super::bytes::{Bytes, Parse};
-use super::codec::buffer;
+use super::bytes::{buffer, Bytes, Parse};
 
 const CHUNK_BYTES: usize = 1 << 30;
 

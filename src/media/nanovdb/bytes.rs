@@ -94,3 +94,10 @@ pub(super) fn offset(base: u64, rel: i64) -> Parse<u64> {
     base.checked_add_signed(rel)
         .ok_or_else(|| format!("child offset {rel} from {base} is out of range"))
 }
+/// Room for `size` bytes, or an error instead of an abort when memory is short.
+pub(super) fn buffer(size: usize) -> Parse<Vec<u8>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(size)
+        .map_err(|_| format!("cannot allocate {size} bytes for the grid"))?;
+    Ok(v)
+}

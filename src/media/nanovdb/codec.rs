@@ -2,7 +2,7 @@
 use std::borrow::Cow;
 use std::io::Read;
 
-use super::bytes::{Bytes, Parse};
+use super::bytes::{buffer, Bytes, Parse};
 use super::{blosc, Codec};
 
 /// The grid buffer of `stored`, which must decode to exactly `grid_bytes` bytes.
@@ -18,14 +18,6 @@ pub(super) fn decode(stored: &[u8], codec: Codec, grid_bytes: u64) -> Parse<Cow<
         Codec::Zip => inflate(stored, size).map(Cow::Owned),
         Codec::Blosc => blosc::decompress(stored, size).map(Cow::Owned),
     }
-}
-
-/// Room for `size` bytes, or an error instead of an abort when memory is short.
-pub(super) fn buffer(size: usize) -> Parse<Vec<u8>> {
-    let mut v = Vec::new();
-    v.try_reserve_exact(size)
-        .map_err(|_| format!("cannot allocate {size} bytes for the grid"))?;
-    Ok(v)
 }
 
 /// NanoVDB's ZIP payload: a u64 byte count, then a zlib stream of that many bytes.

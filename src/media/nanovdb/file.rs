@@ -1,10 +1,10 @@
 //! The file container: segments (header, per-grid metadata and names, then the stored grid
 //! buffers), or from NanoVDB 32.6 on also a bare sequence of grid buffers.
 use super::bytes::{Bytes, Parse};
-use super::{tree, Codec, GridClass, GridMetaData, GridType, Version};
+use super::{
+    tree, version, Codec, GridClass, GridMetaData, GridType, Version, MAGIC_GRID, MAGIC_NUMB,
+};
 
-pub(super) const MAGIC_NUMB: u64 = u64::from_le_bytes(*b"NanoVDB0");
-pub(super) const MAGIC_GRID: u64 = u64::from_le_bytes(*b"NanoVDB1");
 const MAGIC_FILE: u64 = u64::from_le_bytes(*b"NanoVDB2");
 const OPENVDB_MAGIC: u32 = 0x5644_4220;
 const HEADER_BYTES: u64 = 16;
@@ -34,16 +34,6 @@ pub(super) fn entries(b: Bytes) -> Parse<Vec<Entry>> {
         m if m as u32 == OPENVDB_MAGIC => Err("this is an OpenVDB file, not NanoVDB".into()),
         m => Err(format!("not a NanoVDB file (magic {m:#018x})")),
     }
-}
-
-pub(super) fn version(packed: u32) -> Parse<Version> {
-    let v = Version::from_packed(packed);
-    if v.major != 32 {
-        return Err(format!(
-            "NanoVDB version {v} is not supported (major version 32 is)"
-        ));
-    }
-    Ok(v)
 }
 
 fn segments(b: Bytes) -> Parse<Vec<Entry>> {

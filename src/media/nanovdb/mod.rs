@@ -196,3 +196,16 @@ pub fn load_grid_from(path: &Path, data: &[u8], name: &str) -> Result<Grid> {
     let buffer = codec::decode(stored, info.codec, info.grid_bytes).map_err(in_grid)?;
     tree::load_float(&buffer, info).map_err(in_grid)
 }
+/// The magic numbers of a segment header and of a grid buffer.
+const MAGIC_NUMB: u64 = u64::from_le_bytes(*b"NanoVDB0");
+const MAGIC_GRID: u64 = u64::from_le_bytes(*b"NanoVDB1");
+
+fn version(packed: u32) -> bytes::Parse<Version> {
+    let v = Version::from_packed(packed);
+    if v.major != 32 {
+        return Err(format!(
+            "NanoVDB version {v} is not supported (major version 32 is)"
+        ));
+    }
+    Ok(v)
+}

@@ -8,8 +8,7 @@ use std::collections::HashSet;
 use glam::{DAffine3, DMat3, IVec3};
 
 use super::bytes::{offset, Bytes, Parse};
-use super::file::{self, MAGIC_GRID, MAGIC_NUMB};
-use super::{Codec, GridClass, GridMetaData, GridType};
+use super::{version, Codec, GridClass, GridMetaData, GridType, MAGIC_GRID, MAGIC_NUMB};
 use crate::media::grid::{Grid, GridBuilder, Leaf, Tile};
 
 const GRID_DATA: u64 = 672;
@@ -111,7 +110,7 @@ pub(super) fn info(buf: &[u8]) -> Parse<GridMetaData> {
         name: b.c_str(GRID_NAME, GRID_NAME_BYTES)?,
         grid_type: GridType(b.u32(GRID_TYPE)?),
         grid_class: GridClass(b.u32(GRID_CLASS)?),
-        version: file::version(b.u32(16)?)?,
+        version: version(b.u32(16)?)?,
         codec: Codec::None,
         grid_bytes: b.len(),
         file_bytes: b.len(),
@@ -146,7 +145,7 @@ fn check_header(b: Bytes, info: &GridMetaData) -> Parse<()> {
     if magic != MAGIC_NUMB && magic != MAGIC_GRID {
         return Err(format!("bad grid magic {magic:#018x}"));
     }
-    file::version(b.u32(16)?)?;
+    version(b.u32(16)?)?;
     let size = b.u64(32)?;
     if size != b.len() {
         return Err(format!(

@@ -1,14 +1,16 @@
-//! Majorant octrees across reloads: a medium whose field is unchanged keeps its octree in
-//! memory; a changed one goes through the disk cache and is built only on a miss.
+//! The one builder of a scene's media with their majorant octrees ([`OctreeStore`]): a
+//! medium whose field is unchanged since the last build keeps its octree in memory; a new
+//! one goes through the disk cache (built and stored only on a miss), or is built in
+//! memory when there is no cache folder. `render`, `build`, `watch` and the benchmarks
+//! all ask it.
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::{GridMedium, Heterogeneous, Media, MediumDesc};
 use crate::error::Result;
 use crate::majorant::{cache, Octree};
-use crate::media::{GridMedium, Heterogeneous, Media};
-use crate::scene::Scene;
 
 /// Where a medium's octree came from.
 #[derive(Clone, Debug, PartialEq)]
@@ -51,26 +53,17 @@ pub fn load_or_build(dir: &Path, g: &GridMedium, depth: u32) -> (Octree, Origin)
     (t, origin)
 }
 
-/// The scene's media with every grid's octree built now, in memory (benchmarks: one bake
-/// shared by all runs); `report` hears each build.
-pub fn bake(
-    scene: &Scene,
-    depth: u32,
-    mut report: impl FnMut(usize, &GridMedium, &Origin),
-) -> Media {
-    let grids = scene.grid_media.iter().enumerate().map(|(i, g)| {
-        let start = Instant::now();
-        let h = Heterogeneous::build(g.clone(), depth);
-        let origin = Origin::Built {
-            seconds: start.elapsed().as_secs_f64(),
-            nodes: h.octree().nodes.len(),
-            why: None,
-            stored: Err("kept in memory".into()),
-        };
-        report(i, g, &origin);
-        h
-    });
-    Media::with_grids(scene.media.clone(), grids.collect())
+/// The octree of `g` built now and kept in memory only.
+fn build_in_memory(g: &GridMedium, depth: u32) -> (Octree, Origin) {
+    let start = Instant::now();
+    let t = Octree::build(g, depth);
+    let origin = Origin::Built {
+        seconds: start.elapsed().as_secs_f64(),
+        nodes: t.nodes.len(),
+        why: None,
+        stored: Err("kept in memory".into()),
+    };
+    (t, origin)
 }
 
 /// The log line for medium `i`: "octree built in ..." marks every build (tests count it).
@@ -114,24 +107,29 @@ impl OctreeStore {
         Self::default()
     }
 
-    /// The scene's media, every grid with its octree (kept, loaded from the cache in
-    /// `dir` or built and stored there); `report` hears where each came from. Afterwards
-    /// only this scene's octrees are kept.
+    /// The homogeneous `boxes` and the grid `fields`, every grid with its octree (kept,
+    /// loaded from the cache folder `dir` or built and stored there; built in memory
+    /// without a folder); `report` hears where each came from. Afterwards only these
+    /// fields' octrees are kept.
     pub fn media(
         &mut self,
-        scene: &Scene,
+        boxes: &[MediumDesc],
+        fields: &[GridMedium],
         depth: u32,
-        dir: &Path,
+        dir: Option<&Path>,
         mut report: impl FnMut(usize, &GridMedium, &Origin),
     ) -> Result<Media> {
         let mut kept = HashMap::new();
-        let mut grids = Vec::with_capacity(scene.grid_media.len());
-        for (i, g) in scene.grid_media.iter().enumerate() {
+        let mut grids = Vec::with_capacity(fields.len());
+        for (i, g) in fields.iter().enumerate() {
             let key = cache::key(g, depth);
             let (tree, origin) = match self.trees.get(&key).or_else(|| kept.get(&key)) {
                 Some(t) => (t.clone(), Origin::Reused),
                 None => {
-                    let (t, origin) = load_or_build(dir, g, depth);
+                    let (t, origin) = match dir {
+                        Some(dir) => load_or_build(dir, g, depth),
+                        None => build_in_memory(g, depth),
+                    };
                     (Arc::new(t), origin)
                 }
             };
@@ -140,13 +138,15 @@ impl OctreeStore {
             grids.push(Heterogeneous::new(g.clone(), tree)?);
         }
         self.trees = kept;
-        Ok(Media::with_grids(scene.media.clone(), grids))
+        Ok(Media::with_grids(boxes.to_vec(), grids))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use crate::scene::Scene;
 
     /// A scene with two small noise media, the first with `seed`.
     fn scene(seed: u32) -> Scene {
@@ -170,7 +170,9 @@ mod tests {
     fn origins(store: &mut OctreeStore, scene: &Scene, dir: &Path) -> Vec<Origin> {
         let mut out = Vec::new();
         store
-            .media(scene, 3, dir, |_, _, o| out.push(o.clone()))
+            .media(&scene.media, &scene.grid_media, 3, Some(dir), |_, _, o| {
+                out.push(o.clone())
+            })
             .unwrap();
         out
     }

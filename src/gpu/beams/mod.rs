@@ -19,37 +19,43 @@
 //! Pipelining: [`GpuBeams::submit`] uploads a pass and returns at once; the caller traces
 //! the next pass on the CPU while the GPU works, and the next `submit` (or a checkpoint)
 //! waits for the previous one and reports how long it waited.
+mod options;
+mod raster;
+mod stats;
+
+pub use options::{CameraTr, GpuOptions, PrimaryPath};
+pub use stats::{GpuStats, GpuTiming};
+
+use raster::{sums_texture, Raster};
+
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 use wgpu::util::DeviceExt;
 
-use super::freepath::{mode_word, octree_upload, storage_init};
-use super::layout::{media_params, BeamQuad, Chunk, Params, SegmentUpload};
-use super::{
-    buffer_entry, compute_pipelines, read_back, uniform_stride, uniform_table, Gpu, READ,
-    READ_WRITE, UNIFORM,
+use super::buffers::{
+    bind_group, buffer_entry, read_back, storage_init, uniform_stride, uniform_table, Grow, CHUNK,
+    READ, READ_WRITE, UNIFORM,
 };
+use super::layout::{
+    media_params, mode_word, octree_upload, BeamQuad, Chunk, Params, SegmentUpload,
+};
+use super::{compute_pipelines, Gpu};
 use crate::error::{Error, Result};
-use crate::estimate::splat::{reach_per_radius, Line};
 use crate::estimate::Estimator;
+use crate::estimate::{TracedPass, View};
 use crate::film::Film;
+use crate::majorant::Mode;
 use crate::media::Media;
-use crate::pass::{TracedPass, Tracer};
 use crate::sampling::mix64;
-use crate::settings::RenderSettings;
 use crate::transport::camera::Pinhole;
-use crate::transport::freepath::Mode;
-use rayon::prelude::*;
 
 /// The kernel's source: its own file and the shared media code.
 pub const SHADER: &str = concat!(
-    include_str!("../../shaders/beam_estimate.wgsl"),
-    include_str!("../../shaders/freepath.wgsl"),
-    include_str!("../../shaders/media.wgsl")
+    include_str!("../../../shaders/beam_estimate.wgsl"),
+    include_str!("../../../shaders/freepath.wgsl"),
+    include_str!("../../../shaders/media.wgsl")
 );
 
-/// Segments or pixels per dispatch: long single dispatches can lose the device.
-pub const CHUNK: u32 = 65536;
 const WORKGROUP: u32 = 64;
 /// BVH walk iterations per segment per round on software adapters, which end an
 /// invocation's loops after 65,535 iterations in all, its crossings' own loops included:
@@ -58,141 +64,6 @@ pub const SOFTWARE_WALK_BUDGET: u32 = 1024;
 /// The budget below which a walk the adapter still cuts is an error.
 const MIN_WALK_BUDGET: u32 = 8;
 
-/// How the GPU estimates primary camera segments (`--gpu-primary`). Both give the CPU's
-/// sums; which is faster depends on the GPU and the scene (`ppb bench-gpu` times both).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PrimaryPath {
-    /// Measured: the first pass rasterised, the second gathered, then whichever took less
-    /// GPU time per beam; gather where the adapter cannot blend float32 targets of the
-    /// image's size.
-    Auto,
-    /// Beams drawn as film quads, one fragment per candidate pixel.
-    Raster,
-    /// A beam BVH query per primary segment, as for segments after specular bounces.
-    Gather,
-}
-
-impl PrimaryPath {
-    /// What `self` means on `gpu` for a `width` x `height` image (auto stays auto where
-    /// raster is possible); an error when raster is asked for and the adapter cannot do it.
-    pub fn resolve(self, gpu: &Gpu, width: u32, height: u32) -> Result<PrimaryPath> {
-        let why_not = if !gpu
-            .device
-            .features()
-            .contains(wgpu::Features::FLOAT32_BLENDABLE)
-        {
-            Some("cannot blend into float32 targets".to_string())
-        } else if width.max(height) > gpu.limits.max_texture_dimension_2d {
-            Some(format!(
-                "has no {width}x{height} targets (largest side {})",
-                gpu.limits.max_texture_dimension_2d
-            ))
-        } else {
-            None
-        };
-        match (self, why_not) {
-            (PrimaryPath::Raster, Some(why)) => Err(Error::Gpu(format!(
-                "{} {why}: --gpu-primary raster is not possible (use gather)",
-                gpu.describe()
-            ))),
-            (PrimaryPath::Auto, Some(_)) | (PrimaryPath::Gather, _) => Ok(PrimaryPath::Gather),
-            (p, None) => Ok(p),
-        }
-    }
-}
-
-/// Where the GPU's camera transmittance comes from (`--gpu-tr`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CameraTr {
-    /// The CPU's estimate of each segment (`--tr`), uploaded as steps every pass: the
-    /// GPU's image equals the CPU's.
-    Steps,
-    /// Ratio tracking on the GPU along each segment (`shaders/freepath.wgsl`), whatever
-    /// `--tr` says: no steps are uploaded, and the image is another draw of the same
-    /// estimate.
-    Track,
-}
-
-/// How a [`GpuBeams`] estimates: primary segments, camera transmittance, and the render's
-/// seed and free-path sampler (for tracking on the GPU).
-#[derive(Clone, Copy, Debug)]
-pub struct GpuOptions {
-    pub primary: PrimaryPath,
-    pub camera_tr: CameraTr,
-    pub seed: u64,
-    pub free_path: Mode,
-    /// BVH walk iterations per segment per dispatch round; None: unbounded on hardware,
-    /// [`SOFTWARE_WALK_BUDGET`] on software adapters.
-    pub walk_budget: Option<u32>,
-}
-
-impl GpuOptions {
-    /// The options for a render with `settings`.
-    pub fn new(primary: PrimaryPath, camera_tr: CameraTr, settings: &RenderSettings) -> Self {
-        GpuOptions {
-            primary,
-            camera_tr,
-            seed: settings.seed,
-            free_path: settings.free_path,
-            walk_budget: None,
-        }
-    }
-}
-
-/// When the GPU ran one pass's estimate, and how long the CPU waited for it.
-#[derive(Clone, Copy, Debug)]
-pub struct GpuTiming {
-    pub submitted: Instant,
-    pub done: Instant,
-    pub waited: Duration,
-    pub upload_seconds: f64,
-}
-
-/// How the GPU estimate overlapped the CPU's tracing of the next pass.
-#[derive(serde::Serialize, Default, Clone, Debug)]
-pub struct GpuStats {
-    pub adapter: String,
-    /// How primary segments were estimated.
-    pub primary: Option<PrimaryPath>,
-    /// Where the camera transmittance came from.
-    pub camera_tr: Option<CameraTr>,
-    pub passes: u32,
-    /// Sum over passes of submission to completion of the estimate.
-    pub estimate_seconds: f64,
-    /// The part of that during which the CPU was tracing the next pass.
-    pub overlap_seconds: f64,
-    /// Time the CPU sat waiting for the GPU.
-    pub wait_seconds: f64,
-    /// Building and uploading segments and the beam BVH.
-    pub upload_seconds: f64,
-    /// Bytes uploaded for the passes (segments, beams, BVH, quads, transmittance steps)
-    /// and the transmittance steps' share: none when the GPU tracks transmittance.
-    pub upload_bytes: u64,
-    pub tr_step_bytes: u64,
-    /// Beam-segment crossings within the radius, counted by the GPU (as of the last
-    /// read-back).
-    pub beam_evaluations: u64,
-}
-
-impl GpuStats {
-    /// Adds one finished pass; `tracing` is the CPU's tracing interval that ran meanwhile.
-    fn record(&mut self, t: Option<GpuTiming>, tracing: Option<(Instant, Instant)>) {
-        let Some(t) = t else { return };
-        self.passes += 1;
-        self.estimate_seconds += (t.done - t.submitted).as_secs_f64();
-        self.wait_seconds += t.waited.as_secs_f64();
-        self.upload_seconds += t.upload_seconds;
-        if let Some((a, b)) = tracing {
-            let (lo, hi) = (a.max(t.submitted), b.min(t.done));
-            if hi > lo {
-                self.overlap_seconds += (hi - lo).as_secs_f64();
-            }
-        }
-    }
-}
-
 struct InFlight {
     /// How its primaries were estimated, and its beams (the trial's unit of work).
     path: PrimaryPath,
@@ -200,65 +71,6 @@ struct InFlight {
     submitted: Instant,
     upload_seconds: f64,
     poller: JoinHandle<Instant>,
-}
-
-/// A storage buffer that grows to fit.
-struct Grow {
-    label: &'static str,
-    buf: wgpu::Buffer,
-}
-
-impl Grow {
-    fn new(dev: &wgpu::Device, label: &'static str) -> Self {
-        Grow {
-            label,
-            buf: storage(dev, label, 256),
-        }
-    }
-
-    fn write(&mut self, gpu: &Gpu, data: &[u8]) -> Result<()> {
-        self.reserve(gpu, data.len() as u64)?;
-        if !data.is_empty() {
-            gpu.queue.write_buffer(&self.buf, 0, data);
-        }
-        Ok(())
-    }
-
-    /// Makes room for `bytes` (contents undefined).
-    fn reserve(&mut self, gpu: &Gpu, bytes: u64) -> Result<()> {
-        let need = bytes.max(16);
-        if need > gpu.limits.max_storage_buffer_binding_size {
-            return Err(Error::Gpu(format!(
-                "{} needs {need} bytes, over the adapter's storage binding limit of {} \
-                 (use a smaller image or --device cpu)",
-                self.label, gpu.limits.max_storage_buffer_binding_size
-            )));
-        }
-        if need > self.buf.size() {
-            self.buf = storage(&gpu.device, self.label, need.next_power_of_two());
-        }
-        Ok(())
-    }
-}
-
-fn storage(dev: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
-    dev.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    })
-}
-
-/// What rasterising primary segments needs.
-struct Raster {
-    pipeline: wgpu::RenderPipeline,
-    layout: wgpu::BindGroupLayout,
-    target: wgpu::TextureView,
-    primaries: Grow,
-    quads: Grow,
-    /// [`reach_per_radius`] of the camera.
-    reach: f32,
 }
 
 pub struct GpuBeams {
@@ -318,17 +130,7 @@ impl GpuBeams {
         let [per_segment, per_pixel]: [wgpu::ComputePipeline; 2] = pipelines
             .try_into()
             .map_err(|_| Error::Gpu("two pipelines".into()))?;
-        let raster = (primary != PrimaryPath::Gather).then(|| {
-            let layout = quad_layout(dev);
-            Raster {
-                pipeline: quad_pipeline(dev, &module, &layout),
-                layout,
-                target: sums_texture(dev, width, height, true),
-                primaries: Grow::new(dev, "primary segments"),
-                quads: Grow::new(dev, "beam quads"),
-                reach: reach_per_radius(camera),
-            }
-        });
+        let raster = (primary != PrimaryPath::Gather).then(|| Raster::new(dev, &module, camera));
         let primary_sums = match &raster {
             Some(r) => r.target.clone(),
             None => sums_texture(dev, 1, 1, false),
@@ -345,15 +147,7 @@ impl GpuBeams {
             u32::MAX
         });
         let grid_buf = storage_init(&gpu, "the density grids", bytemuck::cast_slice(&grid_words))?;
-        let (mut octree_block, nodes) = octree_upload(media)?;
-        octree_block.mode = mode_word(opts.free_path);
-        let octree_nodes =
-            storage_init(&gpu, "the majorant octrees", bytemuck::cast_slice(&nodes))?;
-        let octrees = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("octrees"),
-            contents: bytemuck::bytes_of(&octree_block),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
+        let (octree_nodes, octrees) = octree_buffers(&gpu, media, opts.free_path)?;
         let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
             size: std::mem::size_of::<Params>() as u64,
@@ -362,28 +156,14 @@ impl GpuBeams {
         });
         let chunk_stride = uniform_stride::<Chunk>(&gpu);
         let chunk_buf = uniform_chunks(dev, 2 * chunk_stride);
-        let accum = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("accum"),
-            size: pixels as u64 * 16,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let accum = read_write(dev, "accum", pixels as u64 * 16);
         let adapter = gpu.describe();
         Ok(GpuBeams {
             segments: Grow::new(dev, "segments"),
             pixel_first: Grow::new(dev, "pixel ranges"),
             seg_out: Grow::new(dev, "segment results"),
             walk_state: Grow::new(dev, "walk states"),
-            unfinished: dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("walks left"),
-                size: 16,
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            unfinished: read_write(dev, "walks left", 16),
             tr_steps: Grow::new(dev, "transmittance steps"),
             nodes: Grow::new(dev, "beam BVH"),
             pieces: Grow::new(dev, "beam pieces"),
@@ -450,6 +230,11 @@ impl GpuBeams {
         self.path
     }
 
+    /// How this estimate overlapped tracing, and its counts so far.
+    pub fn stats(&self) -> &GpuStats {
+        &self.stats
+    }
+
     /// Uploads pass `t` and dispatches its estimate into the accumulator; returns the
     /// previous pass's timing (after waiting for it) if one was in flight.
     pub fn submit(&mut self, t: &TracedPass, media: &Media) -> Result<Option<GpuTiming>> {
@@ -460,6 +245,38 @@ impl GpuBeams {
         if t.beams.is_empty() || media.is_empty() || (!raster && t.beam_map.is_none()) {
             return Ok(prev);
         }
+        let (n_segs, quads) = self.upload(t, media, raster)?;
+        let seg_chunks = chunks(n_segs);
+        let pixel_chunks = chunks(self.pixels);
+        self.write_chunk_table(&seg_chunks, &pixel_chunks);
+        let bind = self.bind_group();
+        let mut enc = self.encoder();
+        if let Some(r) = self.raster.as_ref().filter(|_| raster) {
+            self.draw_quads(r, &mut enc, quads);
+        }
+        enc.clear_buffer(&self.seg_out.buf, 0, None);
+        enc.clear_buffer(&self.walk_state.buf, 0, None);
+        let (mut enc, first_round) = self.walk_segments(enc, &bind, &seg_chunks)?;
+        let first = seg_chunks.len();
+        self.dispatch(&mut enc, &bind, &self.per_pixel, &pixel_chunks, first);
+        let index = self.gpu.queue.submit([enc.finish()]);
+        // Rounds run before the last submission: the estimate starts with the first.
+        let submitted = first_round.unwrap_or_else(Instant::now);
+        self.in_flight = Some(InFlight {
+            path,
+            beams: t.beams.len(),
+            submitted,
+            upload_seconds: (submitted - start).as_secs_f64(),
+            poller: poll_in_background(self.gpu.device.clone(), index),
+        });
+        self.check()?;
+        Ok(prev)
+    }
+
+    /// Uploads what pass `t`'s estimate reads (parameters, segments, transmittance steps,
+    /// the beam BVH, quads when `raster`) and counts the bytes; returns the number of
+    /// segments and of quads.
+    fn upload(&mut self, t: &TracedPass, media: &Media, raster: bool) -> Result<(u32, u32)> {
         let (nodes, pieces) = match &t.beam_map {
             Some(map) => (map.nodes(), map.pieces()),
             None => (Vec::new(), &[][..]),
@@ -476,14 +293,15 @@ impl GpuBeams {
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let gpu = &self.gpu;
         self.segments
-            .write(&self.gpu, bytemuck::cast_slice(&segs.segments))?;
+            .write(gpu, bytemuck::cast_slice(&segs.segments))?;
         self.pixel_first
-            .write(&self.gpu, bytemuck::cast_slice(&segs.pixel_first))?;
+            .write(gpu, bytemuck::cast_slice(&segs.pixel_first))?;
         self.tr_steps
-            .write(&self.gpu, bytemuck::cast_slice(&segs.tr_steps))?;
-        self.nodes.write(&self.gpu, bytemuck::cast_slice(&nodes))?;
-        self.pieces.write(&self.gpu, bytemuck::cast_slice(pieces))?;
+            .write(gpu, bytemuck::cast_slice(&segs.tr_steps))?;
+        self.nodes.write(gpu, bytemuck::cast_slice(&nodes))?;
+        self.pieces.write(gpu, bytemuck::cast_slice(pieces))?;
         let quads = if raster {
             self.write_quads(t, &segs)?
         } else {
@@ -501,42 +319,48 @@ impl GpuBeams {
         let n_segs = segs.segments.len() as u32;
         self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
         self.walk_state.reserve(&self.gpu, n_segs as u64 * 8)?;
-        let seg_chunks = chunks(n_segs);
-        let pixel_chunks = chunks(self.pixels);
-        let table = uniform_table(seg_chunks.iter().chain(&pixel_chunks), self.chunk_stride);
+        Ok((n_segs, quads))
+    }
+
+    /// Writes the chunk table: the segment kernel's chunks, then the pixel kernel's.
+    fn write_chunk_table(&mut self, seg_chunks: &[Chunk], pixel_chunks: &[Chunk]) {
+        let table = uniform_table(seg_chunks.iter().chain(pixel_chunks), self.chunk_stride);
         if table.len() as u64 > self.chunk_buf.size() {
             let size = (table.len() as u64).next_power_of_two();
             self.chunk_buf = uniform_chunks(&self.gpu.device, size);
         }
         self.gpu.queue.write_buffer(&self.chunk_buf, 0, &table);
-        let bind = self.bind_group();
-        let mut enc = self
-            .gpu
+    }
+
+    fn encoder(&self) -> wgpu::CommandEncoder {
+        self.gpu
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        if let Some(r) = self.raster.as_ref().filter(|_| raster) {
-            self.draw_quads(r, &mut enc, quads);
-        }
-        enc.clear_buffer(&self.seg_out.buf, 0, None);
-        enc.clear_buffer(&self.walk_state.buf, 0, None);
-        let rounds = self.params.walk_budget != u32::MAX && n_segs > 0;
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
+    }
+
+    /// Records the segment kernel's BVH walks. On hardware that is one dispatch into
+    /// `enc`. On a software adapter the walks run in rounds of `walk_budget` iterations:
+    /// each round is submitted and read back, and rounds go on while walks remain, with
+    /// half the budget after a round in which the adapter cut some. Returns the encoder to
+    /// record the rest into and when the first round was submitted.
+    fn walk_segments(
+        &mut self,
+        mut enc: wgpu::CommandEncoder,
+        bind: &wgpu::BindGroup,
+        seg_chunks: &[Chunk],
+    ) -> Result<(wgpu::CommandEncoder, Option<Instant>)> {
+        let rounds = self.params.walk_budget != u32::MAX && !seg_chunks.is_empty();
         let mut budget = self.params.walk_budget;
-        // Rounds run before the last submission: the estimate starts with the first.
         let mut first_round: Option<Instant> = None;
         loop {
             enc.clear_buffer(&self.unfinished, 0, None);
-            self.dispatch(&mut enc, &bind, &self.per_segment, &seg_chunks, 0);
+            self.dispatch(&mut enc, bind, &self.per_segment, seg_chunks, 0);
             if !rounds {
                 break;
             }
-            // A software adapter: run this round and go on while walks remain, with half
-            // the budget after a round in which the adapter cut some.
             first_round.get_or_insert_with(Instant::now);
             let left: Vec<u32> = read_back(&self.gpu, enc, &self.unfinished, 8, "walks left")?;
-            enc = self
-                .gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            enc = self.encoder();
             if left[1] > 0 {
                 budget /= 2;
                 if budget < MIN_WALK_BUDGET {
@@ -550,32 +374,7 @@ impl GpuBeams {
             }
         }
         self.params.walk_budget = self.walk_budget;
-        self.dispatch(
-            &mut enc,
-            &bind,
-            &self.per_pixel,
-            &pixel_chunks,
-            seg_chunks.len(),
-        );
-        let index = self.gpu.queue.submit([enc.finish()]);
-        let submitted = first_round.unwrap_or_else(Instant::now);
-        let device = self.gpu.device.clone();
-        let poller = std::thread::spawn(move || {
-            let _ = device.poll(wgpu::PollType::Wait {
-                submission_index: Some(index),
-                timeout: None,
-            });
-            Instant::now()
-        });
-        self.in_flight = Some(InFlight {
-            path,
-            beams: t.beams.len(),
-            submitted,
-            upload_seconds: (submitted - start).as_secs_f64(),
-            poller,
-        });
-        self.check()?;
-        Ok(prev)
+        Ok((enc, first_round))
     }
 
     /// Dispatches `pipeline` over `chunks`, whose entries in the chunk table start at
@@ -594,67 +393,6 @@ impl GpuBeams {
             let offset = ((first + k) as u64 * self.chunk_stride) as u32;
             pass.set_bind_group(0, bind, &[offset]);
             pass.dispatch_workgroups(c.count.div_ceil(WORKGROUP), 1, 1);
-        }
-    }
-
-    /// Uploads the primary segments and the quads of the pass's beams when primaries are
-    /// rasterised; returns the number of quads.
-    fn write_quads(&mut self, t: &TracedPass, segs: &SegmentUpload) -> Result<u32> {
-        let Some(r) = &mut self.raster else {
-            return Ok(0);
-        };
-        let (cam, radius, reach) = (&self.camera, t.beam_radius, r.reach);
-        let (w, h) = (cam.width(), cam.height());
-        let quads: Vec<BeamQuad> = t
-            .beams
-            .par_iter()
-            .enumerate()
-            .filter_map(|(i, b)| {
-                let line = Line::project(cam, b, radius, reach)?;
-                Some(BeamQuad::new(line.rectangle(), b, i as u32, w, h))
-            })
-            .collect();
-        r.primaries
-            .write(&self.gpu, bytemuck::cast_slice(&segs.primaries))?;
-        r.quads.write(&self.gpu, bytemuck::cast_slice(&quads))?;
-        Ok(quads.len() as u32)
-    }
-
-    /// Draws `count` beam quads into the cleared primary target.
-    fn draw_quads(&self, r: &Raster, enc: &mut wgpu::CommandEncoder, count: u32) {
-        let bind = bind_group(
-            &self.gpu.device,
-            &r.layout,
-            &[
-                (0, self.params_buf.as_entire_binding()),
-                (4, self.tr_steps.buf.as_entire_binding()),
-                (7, self.grid_buf.as_entire_binding()),
-                (11, r.primaries.buf.as_entire_binding()),
-                (12, r.quads.buf.as_entire_binding()),
-                (13, self.octree_nodes.as_entire_binding()),
-                (14, self.octrees.as_entire_binding()),
-            ],
-        );
-        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("beam quads"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &r.target,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        if count > 0 {
-            pass.set_pipeline(&r.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.draw(0..6, 0..count);
         }
     }
 
@@ -785,12 +523,12 @@ impl Estimator for GpuBeams {
 
     fn estimate(
         &mut self,
-        tracer: &Tracer,
+        view: View,
         t: &TracedPass,
         _film: &mut Film,
         traced: (Instant, Instant),
     ) -> Result<u64> {
-        let prev = self.submit(t, tracer.media())?;
+        let prev = self.submit(t, view.media)?;
         self.stats.record(prev, Some(traced));
         Ok(0)
     }
@@ -805,115 +543,44 @@ impl Estimator for GpuBeams {
     fn clear(&mut self) -> Result<()> {
         GpuBeams::clear(self)
     }
-
-    fn gpu_stats(&self) -> Option<GpuStats> {
-        Some(self.stats.clone())
-    }
 }
 
-fn bind_group(
-    dev: &wgpu::Device,
-    layout: &wgpu::BindGroupLayout,
-    resources: &[(u32, wgpu::BindingResource)],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = resources
-        .iter()
-        .map(|(binding, resource)| wgpu::BindGroupEntry {
-            binding: *binding,
-            resource: resource.clone(),
-        })
-        .collect();
-    dev.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("beam estimate"),
-        layout,
-        entries: &entries,
+/// The majorant octrees' nodes (a storage buffer) and their table (a uniform), for the
+/// free-path mode `mode`.
+fn octree_buffers(gpu: &Gpu, media: &Media, mode: Mode) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+    let (mut block, nodes) = octree_upload(media)?;
+    block.mode = mode_word(mode);
+    let nodes = storage_init(gpu, "the majorant octrees", bytemuck::cast_slice(&nodes))?;
+    let table = gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("octrees"),
+            contents: bytemuck::bytes_of(&block),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+    Ok((nodes, table))
+}
+
+/// A storage buffer the kernels write and the host clears and reads back.
+fn read_write(dev: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
+    dev.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
     })
 }
 
-/// The target rasterised primary sums blend into (`render`), or a 1x1 stand-in.
-fn sums_texture(dev: &wgpu::Device, width: u32, height: u32, render: bool) -> wgpu::TextureView {
-    let mut usage = wgpu::TextureUsages::TEXTURE_BINDING;
-    if render {
-        usage |= wgpu::TextureUsages::RENDER_ATTACHMENT;
-    }
-    dev.create_texture(&wgpu::TextureDescriptor {
-        label: Some("primary sums"),
-        size: wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::Rgba32Float,
-        usage,
-        view_formats: &[],
-    })
-    .create_view(&wgpu::TextureViewDescriptor::default())
-}
-
-/// Bindings of `quad_vs` and `quad_fs`.
-fn quad_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
-    let frag = wgpu::ShaderStages::FRAGMENT;
-    let entries = [
-        buffer_entry(0, frag, UNIFORM, false),
-        buffer_entry(4, frag, READ, false),
-        buffer_entry(7, frag, READ, false),
-        buffer_entry(11, frag, READ, false),
-        buffer_entry(12, frag | wgpu::ShaderStages::VERTEX, READ, false),
-        buffer_entry(13, frag, READ, false),
-        buffer_entry(14, frag, UNIFORM, false),
-    ];
-    dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some("beam quads"),
-        entries: &entries,
-    })
-}
-
-/// Beam quads blended additively into the float32 primary target.
-fn quad_pipeline(
-    dev: &wgpu::Device,
-    module: &wgpu::ShaderModule,
-    bindings: &wgpu::BindGroupLayout,
-) -> wgpu::RenderPipeline {
-    let layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("beam quads"),
-        bind_group_layouts: &[Some(bindings)],
-        immediate_size: 0,
-    });
-    let add = wgpu::BlendComponent {
-        src_factor: wgpu::BlendFactor::One,
-        dst_factor: wgpu::BlendFactor::One,
-        operation: wgpu::BlendOperation::Add,
-    };
-    dev.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("beam quads"),
-        layout: Some(&layout),
-        vertex: wgpu::VertexState {
-            module,
-            entry_point: Some("quad_vs"),
-            compilation_options: Default::default(),
-            buffers: &[],
-        },
-        primitive: wgpu::PrimitiveState::default(),
-        depth_stencil: None,
-        multisample: wgpu::MultisampleState::default(),
-        fragment: Some(wgpu::FragmentState {
-            module,
-            entry_point: Some("quad_fs"),
-            compilation_options: Default::default(),
-            targets: &[Some(wgpu::ColorTargetState {
-                format: wgpu::TextureFormat::Rgba32Float,
-                blend: Some(wgpu::BlendState {
-                    color: add,
-                    alpha: add,
-                }),
-                write_mask: wgpu::ColorWrites::ALL,
-            })],
-        }),
-        multiview_mask: None,
-        cache: None,
+/// A thread that waits for submission `index` and returns when it finished.
+fn poll_in_background(device: wgpu::Device, index: wgpu::SubmissionIndex) -> JoinHandle<Instant> {
+    std::thread::spawn(move || {
+        let _ = device.poll(wgpu::PollType::Wait {
+            submission_index: Some(index),
+            timeout: None,
+        });
+        Instant::now()
     })
 }
 

@@ -2,6 +2,7 @@
 //! number zero-padded to the run's length (`shot.####.exr` -> `shot.0012.exr`), as in
 //! Houdini's and Nuke's sequence names.
 use std::fmt;
+use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
@@ -95,6 +96,16 @@ pub fn with_frame(s: &str, frame: u32) -> String {
     out
 }
 
+/// `path` with its frame token replaced by `frame`; unchanged without a frame or a token.
+/// The one place a path is put at a frame (scene files, their assets, outputs).
+pub fn at_frame(path: &Path, frame: Option<u32>) -> PathBuf {
+    let s = path.to_string_lossy();
+    match frame {
+        Some(f) if has_token(&s) => PathBuf::from(with_frame(&s, f)),
+        _ => path.to_path_buf(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -111,5 +122,10 @@ mod tests {
         assert_eq!(with_frame("a#/b##.vdb", 123), "a123/b123.vdb");
         assert_eq!(with_frame("plain.vdb", 5), "plain.vdb");
         assert!(has_token("x.#.vdb") && !has_token("x.vdb"));
+        assert_eq!(
+            at_frame(Path::new("a/#.vdb"), Some(3)),
+            Path::new("a/3.vdb")
+        );
+        assert_eq!(at_frame(Path::new("a/#.vdb"), None), Path::new("a/#.vdb"));
     }
 }
