@@ -10,7 +10,7 @@
 // so the sums stay in beam order, as on the CPU. Mirrors
 // `estimate::eq2` (the pair's term with its edge rule, the camera transmittance),
 // `estimate::beams::BeamMap::radiance` and `media::Media` exactly; the structs match the
-// `Pod` types in `src/gpu/layout.rs` and `src/estimate/beams.rs`.
+// `Pod` types in `src/gpu/layout.rs`, `src/estimate/eq2.rs` and `src/estimate/beams.rs`.
 
 struct Chunk {
     first: u32,
@@ -96,7 +96,7 @@ fn grid_tr(seg: Segment, t: f32) -> f32 {
     return tr;
 }
 
-// The camera-transmittance factor, as `estimate::eq2::camera_tr`: the boxes' exact
+// The camera-transmittance factor, as `transport::transmittance::camera_tr`: the boxes' exact
 // exp(-tau) from the segment origin to t times the grid estimate, the CPU's as steps or
 // ratio tracking here (the segment's realization, the same for every t).
 fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
