@@ -186,6 +186,7 @@ impl Tracer {
             free_path,
             tr_samples: s.tr_samples,
             tr_mode: s.tr_mode,
+            lights: &self.lights,
             photons: &photons,
             direct: (s.method == Method::Hybrid).then_some(Direct {
                 lights: &self.lights,

@@ -112,6 +112,21 @@ fn incident(light: &Light, x: Vec3) -> f64 {
             let solid_angle = 2.0 * PI * (1.0 - cos_max);
             radiance.x as f64 * solid_angle * sum / (nc * np) as f64
         }
+        Light::Environment { radiance } => {
+            // Midpoint rule over the sphere of directions (uniform in cos and phi).
+            let (nc, np) = (64, 128);
+            let mut sum = 0.0;
+            for i in 0..nc {
+                let c = -1.0 + 2.0 * (i as f64 + 0.5) / nc as f64;
+                let s = (1.0 - c * c).sqrt();
+                for j in 0..np {
+                    let phi = 2.0 * PI * (j as f64 + 0.5) / np as f64;
+                    let w = Vec3::new((s * phi.cos()) as f32, c as f32, (s * phi.sin()) as f32);
+                    sum += (-st * chord(x, w.normalize())).exp();
+                }
+            }
+            radiance.x as f64 * 4.0 * PI * sum / (nc * np) as f64
+        }
     }
 }
 
@@ -417,5 +432,24 @@ fn next_event_estimation_matches_quadrature() {
             vk <= v1 / k as f64 + slack,
             "{name}: variance {vk:.3e} with {k} samples, {v1:.3e} with 1"
         );
+    }
+}
+
+/// NEE of a constant environment (a uniform direction per sample, the shadow ray to
+/// infinity) equals the quadrature with the same bounds as the lights above.
+#[test]
+fn next_event_estimation_of_an_environment_matches_quadrature() {
+    let light = Light::Environment {
+        radiance: Vec3::splat(0.5),
+    };
+    let quad = quadrature(&light);
+    for (samples, n) in [(1, 200_000), (DEFAULT_NEE_SAMPLES, 50_000)] {
+        let (mean, se, ..) = nee(light, n, samples);
+        eprintln!(
+            "NEE environment, {samples} samples: {mean:.5e} +- {se:.1e}, quadrature {quad:.5e}"
+        );
+        let bound = 4.0 * se + 0.002 * quad;
+        assert!((mean - quad).abs() < bound, "{mean} vs {quad}");
+        assert!(bound < 0.01 * quad, "test too weak: bound {bound}");
     }
 }

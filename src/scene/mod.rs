@@ -77,6 +77,9 @@ pub enum Light {
         radius: f32,
         radiance: Rgb,
     },
+    /// Radiance W/(m^2 sr) arriving from every direction at infinity (a uniform sky);
+    /// camera rays that leave the scene see it.
+    Environment { radiance: Rgb },
 }
 
 /// What one imported file (OBJ, glTF, USD) contributes; mesh materials index `materials`.

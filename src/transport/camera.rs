@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::direct::Direct;
 use super::freepath::FreePath;
-use super::light::enters_glass;
+use super::light::{enters_glass, LightSampler};
 use super::transmittance::camera_tr;
 use super::transmittance::{SegmentTr, StratPixel, StratStore};
 use super::SurfaceEstimate;
@@ -214,6 +214,8 @@ pub struct CameraTracer<'a> {
     /// Grid free paths per camera segment per pass (M).
     pub tr_samples: usize,
     pub tr_mode: TrMode,
+    /// The scene's lights: what a path leaving the scene sees.
+    pub lights: &'a LightSampler,
     /// Radiance stored on surfaces (the photon maps), gathered at diffuse hits.
     pub photons: &'a dyn SurfaceEstimate,
     /// Next-event estimation of direct light (the hybrid method), or None (pure PPB).
@@ -347,7 +349,10 @@ impl CameraTracer<'_> {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
             l += self.segment(&ray, t_surf, &mut st, first.take(), rng, c, out);
-            let Some(h) = hit else { break };
+            let Some(h) = hit else {
+                l += st.beta * self.lights.background(ray.d);
+                break;
+            };
             let material = match h.surface {
                 Surface::Emitter(le) => {
                     l += st.beta * le;
@@ -414,7 +419,8 @@ impl CameraTracer<'_> {
             l = st.beta * d.along(ray, t_surf, &spans, tr, rng, c);
         }
         let beta = st.beta;
-        if !self.media.is_empty() && !st.in_glass && t_surf.is_finite() {
+        // To the surface, or to infinity for a path that leaves the scene.
+        if !self.media.is_empty() && !st.in_glass {
             let tau = self.media.optical_depth(ray, 0.0, t_surf);
             st.beta *= (-tau).exp() * gtr.eval(t_surf);
         }

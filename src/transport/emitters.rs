@@ -1,6 +1,11 @@
 //! What each light kind does, in one place: its power, the start of a light path it emits,
-//! a sample of it seen from a point (next-event estimation) and where equiangular sampling
-//! aims. A new kind is a variant of `scene::Light` and one arm in each method here.
+//! a sample of it seen from a point (next-event estimation), where equiangular sampling
+//! aims and what a ray leaving the scene sees of it. A new kind is a variant of
+//! `scene::Light` and one arm in each method here.
+//!
+//! Lights at infinity (directional, environment) light the scene's bounding sphere
+//! (`scene_center`, `scene_radius`): their light paths start on a disk of it facing the
+//! direction they travel, whose area enters their power.
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
@@ -49,6 +54,10 @@ impl Light {
             Light::Sphere {
                 radius, radiance, ..
             } => radiance * PI * 4.0 * PI * radius * radius,
+            // pi R^2 of disk per unit solid angle, over the whole sphere of directions.
+            Light::Environment { radiance } => {
+                radiance * 4.0 * PI * PI * scene_radius * scene_radius
+            }
         }
     }
 
@@ -80,12 +89,18 @@ impl Light {
                     power: intensity * falloff * solid_angle,
                 }
             }
-            Light::Directional { direction, .. } => {
-                let (t, b) = orthonormal_basis(direction);
-                let d = uniform_disk(u1) * scene_radius;
+            Light::Directional { direction, .. } => Emission {
+                origin: disk_origin(direction, scene_center, scene_radius, u1),
+                dir: direction,
+                power,
+            },
+            // A uniform direction of travel (every direction carries the same radiance),
+            // the power spread over the sphere of directions by their density 1/(4 pi).
+            Light::Environment { .. } => {
+                let dir = uniform_sphere(u2);
                 Emission {
-                    origin: scene_center - direction * scene_radius * 1.01 + t * d.x + b * d.y,
-                    dir: direction,
+                    origin: disk_origin(dir, scene_center, scene_radius, u1),
+                    dir,
                     power,
                 }
             }
@@ -135,6 +150,21 @@ impl Light {
                 radius,
                 radiance,
             } => sphere(center, radius, radiance, x, u),
+            // A uniform direction: density 1/(4 pi) sr^-1.
+            Light::Environment { radiance } => Some(LightSample {
+                dir: uniform_sphere(u),
+                dist: f32::INFINITY,
+                value: radiance * (4.0 * PI),
+            }),
+        }
+    }
+
+    /// Radiance a ray leaving the scene along `dir` sees of the light: the environment's,
+    /// 0 for the others.
+    pub fn background(&self, _dir: Vec3) -> Rgb {
+        match *self {
+            Light::Environment { radiance } => radiance,
+            _ => Rgb::ZERO,
         }
     }
 
@@ -143,9 +173,17 @@ impl Light {
         match *self {
             Light::Point { position, .. } | Light::Spot { position, .. } => Some(position),
             Light::Sphere { center, .. } => Some(center),
-            Light::Directional { .. } => None,
+            Light::Directional { .. } | Light::Environment { .. } => None,
         }
     }
+}
+
+/// A uniform point of the disk of the scene's bounding sphere that faces direction of
+/// travel `dir`, just outside the sphere.
+fn disk_origin(dir: Vec3, scene_center: Vec3, scene_radius: f32, u: Vec2) -> Vec3 {
+    let (t, b) = orthonormal_basis(dir);
+    let d = uniform_disk(u) * scene_radius;
+    scene_center - dir * scene_radius * 1.01 + t * d.x + b * d.y
 }
 
 /// Spot falloff along emission direction `w`: full inside `inner_deg`, linear in cos to

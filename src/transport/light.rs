@@ -55,6 +55,11 @@ impl LightSampler {
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
+    /// Radiance a ray leaving the scene along `dir` sees: the lights at infinity.
+    pub fn background(&self, dir: Vec3) -> Rgb {
+        self.lights.iter().map(|l| l.background(dir)).sum()
+    }
+
     /// A light chosen by power from `u` in [0, 1), with the probability of choosing it.
     pub fn pick(&self, u: f32) -> Option<(&Light, f32)> {
         let idx = self.cdf.iter().position(|&c| u < c)?;
@@ -210,7 +215,9 @@ impl LightTracer<'_> {
     /// average the fluence with the empty outside and lose up to half of it (a bias of order
     /// r at every face a view ray crosses). Outside the media the path's fluence is the same
     /// as at the face (nothing attenuates it), and camera points there have sigma_s = 0, so
-    /// the extension removes that bias and adds nothing else.
+    /// the extension removes that bias and adds nothing else. Beams that pass just outside
+    /// a face without crossing it are not stored, so a bias of order r remains there
+    /// (`tests/environment.rs` measures it).
     fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
         for (a, b) in self.media.padded_spans(ray, t_end, self.beam_margin) {
             out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));

@@ -133,6 +133,9 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 outer_deg: outer,
             }
         }
+        FileLight::Environment { radiance } => Light::Environment {
+            radiance: ck.nonneg3(&f("radiance"), *radiance)?,
+        },
         FileLight::Directional {
             direction,
             irradiance,

@@ -105,6 +105,9 @@ pub(super) enum FileLight {
         inner_deg: Option<f32>,
         outer_deg: Option<f32>,
     },
+    Environment {
+        radiance: [f32; 3],
+    },
     Directional {
         direction: [f32; 3],
         irradiance: [f32; 3],
