@@ -444,6 +444,44 @@ def Xform "World"
         .contains(&"imported Mesh /World/Tri (1 triangles)".to_string()));
 }
 
+/// A DomeLight without a texture is a constant environment of intensity x 2^exposure x
+/// color, whatever its transform; a textured one is left out with a note saying why.
+#[test]
+fn dome_lights_become_constant_environments() {
+    let dir = scratch("dome");
+    let body = format!(
+        r#"{HEADER}
+def Xform "World"
+{{
+    def DomeLight "Sky"
+    {{
+        float inputs:intensity = 2
+        float inputs:exposure = 1
+        color3f inputs:color = (0.5, 1, 0.25)
+        double3 xformOp:rotateXYZ = (0, 90, 0)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+    }}
+    def DomeLight "Map"
+    {{
+        asset inputs:texture:file = @sky.exr@
+    }}
+}}
+"#
+    );
+    let p = write_stage(&dir, "dome.usda", &body);
+    let imp = load_usd(&p).expect("imports");
+    assert_eq!(
+        imp.lights,
+        [Light::Environment {
+            radiance: Vec3::new(2.0, 4.0, 1.0)
+        }]
+    );
+    assert!(imp
+        .notes
+        .iter()
+        .any(|n| n.starts_with("ignored DomeLight /World/Map: its texture map is not read")));
+}
+
 fn err_text(p: &Path) -> String {
     match load_usd(p) {
         Ok(_) => panic!("{} should not import", p.display()),

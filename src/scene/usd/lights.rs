@@ -1,5 +1,5 @@
-//! SphereLight and DistantLight in ppb's units (radiance = intensity x 2^exposure x color),
-//! and the camera.
+//! SphereLight, DistantLight and DomeLight in ppb's units (radiance = intensity x
+//! 2^exposure x color), and the camera.
 use super::*;
 
 impl Ctx<'_> {
@@ -65,6 +65,25 @@ impl Ctx<'_> {
         };
         self.out.lights.push(light);
         self.note(format!("imported DistantLight {p} as {light:?}"));
+        Ok(())
+    }
+
+    /// DomeLight without a texture: a constant environment of radiance
+    /// [`Self::lux_radiance`] (its transform turns nothing that is constant). A textured
+    /// dome (`inputs:texture:file`) is left out with a note: lat-long maps are not read
+    /// yet, and a constant stand-in would light the scene wrongly.
+    pub(super) fn dome_light(&mut self, p: &sdf::Path) -> Result<()> {
+        if self.value(p, "inputs:texture:file")?.is_some() {
+            self.note(format!(
+                "ignored DomeLight {p}: its texture map is not read (maps are not supported yet)"
+            ));
+            return Ok(());
+        }
+        let light = Light::Environment {
+            radiance: self.lux_radiance(p)?.as_vec3(),
+        };
+        self.out.lights.push(light);
+        self.note(format!("imported DomeLight {p} as {light:?}"));
         Ok(())
     }
 

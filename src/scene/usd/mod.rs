@@ -14,7 +14,8 @@
 //!   ancestors). Rule: `opacity < 1` -> Dielectric with `inputs:ior` (default 1.5);
 //!   else `metallic >= 0.5` -> Mirror tinted by diffuseColor; else Lambert with
 //!   `diffuseColor` (default 0.18 grey). Unbound meshes get the 0.18 grey Lambert.
-//! - **Lights**: see [`sphere_light`] and [`distant_light`] for the unit rules.
+//! - **Lights**: see [`sphere_light`], [`distant_light`] and [`dome_light`] for the unit
+//!   rules (a textured DomeLight is left out: maps are not read yet).
 //! - **Camera**: the first Camera prim; see [`camera`].
 //! - **Volume**: the `field:density` (else first) OpenVDBAsset; see [`volume`].
 //!
@@ -228,6 +229,7 @@ impl<'a> Ctx<'a> {
             "Sphere" => self.sphere(p),
             "SphereLight" => self.sphere_light(p),
             "DistantLight" => self.distant_light(p),
+            "DomeLight" => self.dome_light(p),
             "Camera" => self.camera(p),
             "Volume" => self.volume(p),
             t if is_structural(t) => Ok(()),
