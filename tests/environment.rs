@@ -5,12 +5,12 @@
 //! photons for the rest) and the paper's pure one (all light through beams and photons).
 //! Each pass is an independent estimate of the same expectation, so the bound is 4 standard
 //! errors of the pass means. The photon kernel blurs nothing on the floor (constant
-//! radiance). The beam kernel is biased by of order r in the furnace: at a camera point
-//! just inside a face it also averages beams that pass just outside without crossing it,
-//! and those are not stored (measured on the pure method: -0.5 % at r = 8 cm, -0.2 % at
-//! 2 cm, 4 seeds each); the hybrid method's beams, which carry multiple scattering only,
-//! also blur its peak in the middle (-0.34 % at the auto radius of about 12 cm). A 5 mm
-//! beam radius keeps both well inside the bound.
+//! radiance). The beam kernel is biased by order r in the furnace: at a camera point just
+//! inside a face it also averages beams that pass just outside without crossing it, and
+//! those are not stored (measured on the pure method: -0.5 % at r = 8 cm, -0.2 % at 2 cm,
+//! means over 2 and 4 seeds); the hybrid method's beams, which carry multiple scattering
+//! only, also blur its peak in the middle (-0.34 % at the auto radius of about 12 cm). A
+//! 5 mm beam radius keeps both well inside the bound.
 use std::path::Path;
 
 use ppb::pass::Tracer;
