@@ -419,8 +419,10 @@ impl CameraTracer<'_> {
             l = st.beta * d.along(ray, t_surf, &spans, tr, rng, c);
         }
         let beta = st.beta;
-        // To the surface, or to infinity for a path that leaves the scene.
-        if !self.media.is_empty() && !st.in_glass {
+        // To the surface, or to infinity for a path that leaves the scene when a light
+        // there (the environment) is what it will see.
+        let reaches = t_surf.is_finite() || self.lights.at_infinity();
+        if !self.media.is_empty() && !st.in_glass && reaches {
             let tau = self.media.optical_depth(ray, 0.0, t_surf);
             st.beta *= (-tau).exp() * gtr.eval(t_surf);
         }

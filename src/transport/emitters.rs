@@ -159,6 +159,11 @@ impl Light {
         }
     }
 
+    /// Whether a ray leaving the scene sees the light (the environment).
+    pub fn is_background(&self) -> bool {
+        matches!(self, Light::Environment { .. })
+    }
+
     /// Radiance a ray leaving the scene along `dir` sees of the light: the environment's,
     /// 0 for the others.
     pub fn background(&self, _dir: Vec3) -> Rgb {

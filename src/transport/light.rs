@@ -55,6 +55,11 @@ impl LightSampler {
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
+    /// Whether a ray leaving the scene sees any light (an environment).
+    pub fn at_infinity(&self) -> bool {
+        self.lights.iter().any(Light::is_background)
+    }
+
     /// Radiance a ray leaving the scene along `dir` sees: the lights at infinity.
     pub fn background(&self, dir: Vec3) -> Rgb {
         self.lights.iter().map(|l| l.background(dir)).sum()
