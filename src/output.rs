@@ -151,7 +151,12 @@ const EXR_PIXELS_PER_BYTE: u64 = 1 << 10;
 /// 100000 x 100000 pixels would otherwise ask for 120 GB and abort the process.
 pub fn read_exr(path: &Path) -> Result<Image> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let meta = ::exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+    decode_exr(path, &bytes)
+}
+
+/// [`read_exr`] of bytes already read from `path` (named in errors).
+pub fn decode_exr(path: &Path, bytes: &[u8]) -> Result<Image> {
+    let meta = ::exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
         .map_err(|e| Error::format(path, format!("reading EXR header: {e}")))?;
     let limit = EXR_MIN_PIXEL_LIMIT.max((bytes.len() as u64).saturating_mul(EXR_PIXELS_PER_BYTE));
     for h in &meta.headers {
@@ -180,7 +185,7 @@ pub fn read_exr(path: &Path) -> Result<Image> {
         )
         .first_valid_layer()
         .all_attributes()
-        .from_buffered(std::io::Cursor::new(&bytes))
+        .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| Error::format(path, format!("reading EXR: {e}")))?;
     let size = image.layer_data.size;
     Ok(Image {

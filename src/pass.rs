@@ -13,7 +13,7 @@ use crate::estimate::{beams::BeamMap, cpu, photons::Photons, Timings, TracedPass
 use crate::geometry::Geometry;
 use crate::media::Media;
 use crate::plan::{PassPlan, Plan};
-use crate::scene::Scene;
+use crate::scene::{Light, Scene};
 use crate::settings::TrMode;
 use crate::settings::{
     Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS, SMOOTH_PHOTON_SCALE,
@@ -57,9 +57,16 @@ impl Tracer {
     pub fn with_media(scene: &Scene, settings: RenderSettings, media: Media) -> Result<Self> {
         let geometry = Geometry::new(scene)?;
         let camera = Pinhole::new(&scene.camera, settings.width, settings.height);
-        let bounds = union(geometry.bounds(), media.bounds()).ok_or_else(|| {
-            Error::Other("the scene has neither surfaces nor media to light".into())
-        })?;
+        // A scene of nothing but an environment is its sky, seen from the camera.
+        let sky_only = scene.lights.iter().any(Light::is_background).then(|| {
+            let o = scene.camera.origin;
+            [o - Vec3::ONE, o + Vec3::ONE]
+        });
+        let bounds = union(geometry.bounds(), media.bounds())
+            .or(sky_only)
+            .ok_or_else(|| {
+                Error::Other("the scene has neither surfaces nor media to light".into())
+            })?;
         let lights = LightSampler::new(&scene.lights, bounds);
         if lights.total_power().max_element() <= 0.0 {
             return Err(Error::Other("the lights emit no power".into()));

@@ -123,6 +123,60 @@ pub fn uniform_disk(u: Vec2) -> Vec2 {
     Vec2::new(r * theta.cos(), r * theta.sin())
 }
 
+/// A discrete distribution proportional to non-negative weights: inverted by binary search
+/// over its cumulative sums (kept in f64 so a million small weights still add up).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Discrete {
+    /// cdf[i] = sum of the weights before i, over the total; cdf[n] = 1.
+    cdf: Vec<f64>,
+    total: f64,
+}
+
+impl Discrete {
+    /// None when no weight is positive (negative and non-finite weights count as 0).
+    pub fn new(weights: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let mut cdf = vec![0.0];
+        let mut acc = 0.0f64;
+        for w in weights {
+            acc += if w.is_finite() { w.max(0.0) } else { 0.0 };
+            cdf.push(acc);
+        }
+        if acc <= 0.0 {
+            return None;
+        }
+        cdf.iter_mut().for_each(|c| *c /= acc);
+        Some(Discrete { cdf, total: acc })
+    }
+
+    pub fn len(&self) -> usize {
+        self.cdf.len() - 1
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Sum of the weights.
+    pub fn total(&self) -> f64 {
+        self.total
+    }
+
+    pub fn prob(&self, i: usize) -> f32 {
+        (self.cdf[i + 1] - self.cdf[i]) as f32
+    }
+
+    /// The index `u` in [0, 1) falls in, its probability, and `u` rescaled to [0, 1)
+    /// within the index's share (so one uniform also places the sample inside it).
+    pub fn sample(&self, u: f32) -> (usize, f32, f32) {
+        let u = u as f64;
+        let i = (self.cdf.partition_point(|&c| c <= u) - 1).min(self.len() - 1);
+        // The last i with cdf[i] <= u has cdf[i + 1] > u: a zero weight is never drawn.
+        let (lo, hi) = (self.cdf[i], self.cdf[i + 1]);
+        let rest = ((u - lo) / (hi - lo)).clamp(0.0, 1.0 - f64::EPSILON);
+        (i, (hi - lo) as f32, rest as f32)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,11 +11,17 @@
 //! means over 2 and 4 seeds); the hybrid method's beams, which carry multiple scattering
 //! only, also blur its peak in the middle (-0.34 % at the auto radius of about 12 cm). A
 //! 5 mm beam radius keeps both well inside the bound.
-use std::path::Path;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
 
+use glam::{Vec2, Vec3};
 use ppb::pass::Tracer;
+use ppb::scene::environment::{dir_to_uv, uv_to_dir};
 use ppb::scene::toml::parse;
+use ppb::scene::Light;
 use ppb::session::Session;
+
+mod common;
 
 /// The image mean of each of `passes` passes of the scene `text` with `method`: their mean
 /// and standard error.
@@ -112,4 +118,139 @@ beam_radius = 0.005
 fn furnace_medium_under_a_constant_environment() {
     check("env-furnace", FURNACE, "hybrid", 80, 1.0);
     check("env-furnace", FURNACE, "ppb", 80, 1.0);
+}
+
+/// Writes a lat-long map as a float32 RGB EXR `name` in a fresh folder; returns its path.
+fn write_map(name: &str, w: usize, h: usize, f: impl Fn(Vec3) -> [f32; 3] + Sync) -> PathBuf {
+    let dir = common::temp_dir("env", name);
+    let path = dir.join(format!("{name}.exr"));
+    exr::prelude::write_rgb_file(&path, w, h, |i, j| {
+        let d = uv_to_dir(Vec2::new(
+            (i as f32 + 0.5) / w as f32,
+            (j as f32 + 0.5) / h as f32,
+        ));
+        let [r, g, b] = f(d);
+        (r, g, b)
+    })
+    .expect("writes the map");
+    path
+}
+
+/// The light block of an environment read from `map` (radiance 1 unless `extra` says).
+fn map_light(map: &Path, extra: &str) -> String {
+    format!(
+        "[[light]]\ntype = \"environment\"\nmap = \"{}\"\n{extra}\n",
+        map.display()
+    )
+}
+
+/// A map of constant radiance 1 is the constant environment drawn by its texels: the
+/// furnace holds through map sampling, the map's emission and the MIS with the phase
+/// function.
+#[test]
+fn furnace_under_a_constant_map() {
+    let map = write_map("flat", 32, 16, |_| [1.0; 3]);
+    let text = FURNACE.replace(
+        "[[light]]\ntype = \"environment\"\nradiance = [1, 1, 1]\n",
+        &map_light(&map, ""),
+    );
+    assert!(text.contains("map ="));
+    check("env-map-furnace", &text, "hybrid", 80, 1.0);
+    check("env-map-furnace", &text, "ppb", 80, 1.0);
+}
+
+/// A sky with a sun: a gradient, a dim ground and a 9-degree disk 60 times as bright at
+/// 50 degrees elevation, turned by 30 degrees.
+fn sun_sky(d: Vec3) -> [f32; 3] {
+    let sun = Vec3::new(0.4, 0.766, -0.5).normalize();
+    let s = if d.dot(sun) > 9f32.to_radians().cos() {
+        60.0
+    } else {
+        0.0
+    };
+    if d.y < 0.0 {
+        [0.05 + s, 0.04 + s, 0.03 + s]
+    } else {
+        let y = d.y.sqrt();
+        [0.9 - 0.5 * y + s, 0.9 - 0.3 * y + s, 1.0 + s]
+    }
+}
+
+/// rho / pi * int over the upper hemisphere of L(w) cos(w) dw, by a midpoint rule on the
+/// scene's own environment (bilinear lookups of the map as written).
+fn floor_radiance(light: &Light, rho: f64) -> f64 {
+    let Light::Environment(env) = light else {
+        panic!("expected the environment, got {light:?}")
+    };
+    let (nc, np) = (1000, 2000);
+    let mut sum = 0.0;
+    for a in 0..nc {
+        let c = (a as f64 + 0.5) / nc as f64;
+        let s = (1.0 - c * c).sqrt();
+        for b in 0..np {
+            let phi = 2.0 * PI * (b as f64 + 0.5) / np as f64;
+            let d = Vec3::new((s * phi.cos()) as f32, c as f32, (s * phi.sin()) as f32);
+            sum += env.eval(d).y as f64 * c;
+        }
+    }
+    rho / PI * sum * 2.0 * PI / (nc * np) as f64
+}
+
+/// A Lambert floor under the sun sky (upper hemisphere unoccluded): rho / pi times the
+/// cosine-weighted integral of the map, with the map importance-sampled and MIS against
+/// the cosine (hybrid), and through photons emitted by the map (pure).
+#[test]
+fn lambert_floor_under_a_sun_sky_map() {
+    let map = write_map("sun", 128, 64, sun_sky);
+    let text = FLOOR.replace(
+        "[[light]]\ntype = \"environment\"\nradiance = [0.8, 0.8, 0.8]\n",
+        &map_light(&map, "radiance = [0.5, 0.5, 0.5]\nrotation = 30"),
+    );
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/env-sun.toml");
+    let file = parse(&path, &format!("{text}\n{RENDER}")).expect("scene parses");
+    let want = floor_radiance(&file.scene.lights[0], 0.5);
+    check("env-sun", &text, "hybrid", 80, want);
+    check("env-sun", &text, "ppb", 80, want);
+}
+
+/// The map as the camera sees it: looking along +X with +Y up, a map whose texels hold
+/// their own (u, v) shows, in each pixel, the (u, v) of the direction through the pixel
+/// by SPEC.md's camera (u growing to the right, towards +Z; v downwards); turned by
+/// 90 degrees the same pixels show the map a quarter turn further on (u + 0.25: the map's
+/// u = 0 has moved from world -Z to -X).
+#[test]
+fn the_camera_sees_the_map_in_the_stated_convention() {
+    let map = write_map("uv", 256, 128, |d| {
+        let uv = dir_to_uv(d);
+        [uv.x, uv.y, 1.0]
+    });
+    for rotation in [0.0f32, 90.0] {
+        let text = format!(
+            "[camera]\norigin = [0, 0, 0]\ntarget = [1, 0, 0]\nup = [0, 1, 0]\nvfov = 60\n\n{}\n[render]\nwidth = 32\nheight = 16\npasses = 16\n",
+            map_light(&map, &format!("rotation = {rotation}"))
+        );
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/env-uv.toml");
+        let file = parse(&path, &text).expect("scene parses");
+        let tracer = Tracer::new(&file.scene, file.settings).expect("tracer");
+        let mut session = Session::cpu(tracer);
+        let img = session.pass_image(1).expect("pass");
+        let (w, h) = (32.0f32, 16.0f32);
+        let a = 30f32.to_radians().tan();
+        let (f, r, up) = (Vec3::X, Vec3::Z, Vec3::Y);
+        let mut worst = 0.0f32;
+        for y in 0..16 {
+            for x in 0..32 {
+                let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+                let sx = (2.0 * px / w - 1.0) * a * w / h;
+                let sy = (1.0 - 2.0 * py / h) * a;
+                let d = (r * sx + up * sy + f).normalize();
+                let uv = dir_to_uv(d) + Vec2::new(rotation / 360.0, 0.0);
+                let got = img.pixels[y * 32 + x];
+                // One pass jitters within the pixel: up to about a pixel's span of u, v.
+                worst = worst.max((Vec2::new(got[0], got[1]) - uv).abs().max_element());
+            }
+        }
+        eprintln!("rotation {rotation}: worst |uv - expected| {worst:.4}");
+        assert!(worst < 0.02, "rotation {rotation}: {worst}");
+    }
 }

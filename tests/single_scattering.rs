@@ -15,7 +15,7 @@ use ppb::geometry::Geometry;
 use ppb::majorant::Mode;
 use ppb::media::{Media, MediumDesc, Phase};
 use ppb::sampling::Rng;
-use ppb::scene::{Light, Scene};
+use ppb::scene::{Environment, Light, Scene};
 use ppb::settings::DEFAULT_NEE_SAMPLES;
 use ppb::transport::direct::Direct;
 use ppb::transport::freepath::FreePath;
@@ -112,9 +112,9 @@ fn incident(light: &Light, x: Vec3) -> f64 {
             let solid_angle = 2.0 * PI * (1.0 - cos_max);
             radiance.x as f64 * solid_angle * sum / (nc * np) as f64
         }
-        Light::Environment { radiance } => {
+        Light::Environment(ref env) => {
             // Midpoint rule over the sphere of directions (uniform in cos and phi).
-            let (nc, np) = (64, 128);
+            let (nc, np) = (256, 512);
             let mut sum = 0.0;
             for i in 0..nc {
                 let c = -1.0 + 2.0 * (i as f64 + 0.5) / nc as f64;
@@ -122,10 +122,11 @@ fn incident(light: &Light, x: Vec3) -> f64 {
                 for j in 0..np {
                     let phi = 2.0 * PI * (j as f64 + 0.5) / np as f64;
                     let w = Vec3::new((s * phi.cos()) as f32, c as f32, (s * phi.sin()) as f32);
-                    sum += (-st * chord(x, w.normalize())).exp();
+                    let w = w.normalize();
+                    sum += env.eval(w).x as f64 * (-st * chord(x, w)).exp();
                 }
             }
-            radiance.x as f64 * 4.0 * PI * sum / (nc * np) as f64
+            4.0 * PI * sum / (nc * np) as f64
         }
     }
 }
@@ -413,7 +414,7 @@ fn next_event_estimation_matches_quadrature() {
         let quad = quadrature(&light);
         let mut vars = Vec::new();
         for (samples, n) in [(1, 200_000), (k, 50_000)] {
-            let (mean, se, var, var_se) = nee(light, n, samples);
+            let (mean, se, var, var_se) = nee(light.clone(), n, samples);
             eprintln!(
                 "NEE {name}, {samples} samples: {mean:.5e} +- {se:.1e}, quadrature {quad:.5e}, \
                  ratio {:.4}, variance {var:.3e}",
@@ -439,12 +440,10 @@ fn next_event_estimation_matches_quadrature() {
 /// infinity) equals the quadrature with the same bounds as the lights above.
 #[test]
 fn next_event_estimation_of_an_environment_matches_quadrature() {
-    let light = Light::Environment {
-        radiance: Vec3::splat(0.5),
-    };
+    let light = Light::Environment(Environment::constant(Vec3::splat(0.5)));
     let quad = quadrature(&light);
     for (samples, n) in [(1, 200_000), (DEFAULT_NEE_SAMPLES, 50_000)] {
-        let (mean, se, ..) = nee(light, n, samples);
+        let (mean, se, ..) = nee(light.clone(), n, samples);
         eprintln!(
             "NEE environment, {samples} samples: {mean:.5e} +- {se:.1e}, quadrature {quad:.5e}"
         );

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use ppb::scene::usd::load_usd;
-use ppb::scene::{Imported, Light, Material, Mesh};
+use ppb::scene::{Environment, Imported, Light, Material, Mesh};
 use serde_json::Value;
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/usd/stage/");
@@ -127,7 +127,7 @@ fn check_lights(j: &Value, imp: &Imported) {
             // Point-like sphere light: radiant intensity L * pi * r^2 (W/sr).
             assert!(close(intensity, l * PI * r * r, 1e-4), "{intensity}");
         }
-        other => panic!("expected a point light, got {other:?}"),
+        ref other => panic!("expected a point light, got {other:?}"),
     }
     let sun = prim(j, "/World/Sun");
     match imp.lights[1] {
@@ -142,7 +142,7 @@ fn check_lights(j: &Value, imp: &Imported) {
             let e = sun["intensity"].as_f64().unwrap() as f32 * v3(&sun["color"]);
             assert!(close(irradiance, e, 1e-6));
         }
-        other => panic!("expected a directional light, got {other:?}"),
+        ref other => panic!("expected a directional light, got {other:?}"),
     }
 }
 
@@ -361,7 +361,7 @@ def Camera "Cam"
             assert!((radius - 0.5).abs() < 1e-6);
             assert_eq!(radiance, Vec3::ONE);
         }
-        other => panic!("expected a sphere light, got {other:?}"),
+        ref other => panic!("expected a sphere light, got {other:?}"),
     }
     // Camera fallbacks: focalLength 50, verticalAperture 15.2908. Its own -Z is "down"
     // in a Z-up stage, so world -Y; its +Y maps to world -Z.
@@ -472,9 +472,9 @@ def Xform "World"
     let imp = load_usd(&p).expect("imports");
     assert_eq!(
         imp.lights,
-        [Light::Environment {
-            radiance: Vec3::new(2.0, 4.0, 1.0)
-        }]
+        [Light::Environment(Environment::constant(Vec3::new(
+            2.0, 4.0, 1.0
+        )))]
     );
     assert!(imp
         .notes

@@ -187,6 +187,21 @@ impl Media {
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
+    /// Density of the direction [`Self::pick_collider`]'s phase function draws at `p`:
+    /// the phase functions' mixture by sigma_t (1/sr; 0 where nothing scatters).
+    pub fn phase_pdf(&self, p: Vec3, cos_theta: f32) -> f32 {
+        let (mut sum, mut total) = (0.0, 0.0);
+        for (s, _, phase) in self.components(p) {
+            sum += s * phase.eval(cos_theta);
+            total += s;
+        }
+        if total > 0.0 {
+            sum / total
+        } else {
+            0.0
+        }
+    }
+
     /// (sigma_t, albedo, phase) of every medium present at `p`.
     fn components(&self, p: Vec3) -> impl Iterator<Item = (f32, Rgb, Phase)> + '_ {
         let hom = self

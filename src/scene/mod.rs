@@ -2,6 +2,7 @@
 //!
 //! Units: metres, radiometric (W, W/sr, W/m^2, W/(m^2 sr)); right-handed, +Y up.
 pub mod assets;
+pub mod environment;
 pub mod files;
 pub mod format;
 pub mod gltf;
@@ -11,6 +12,7 @@ pub mod obj;
 pub mod toml;
 pub mod usd;
 
+pub use environment::{EnvMap, Environment};
 pub use format::Format;
 
 use glam::Vec3;
@@ -56,7 +58,7 @@ pub struct Mesh {
     pub material: usize,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Light {
     /// Isotropic point light, radiant intensity W/sr.
     Point { position: Vec3, intensity: Rgb },
@@ -77,9 +79,9 @@ pub enum Light {
         radius: f32,
         radiance: Rgb,
     },
-    /// Radiance W/(m^2 sr) arriving from every direction at infinity (a uniform sky);
-    /// camera rays that leave the scene see it.
-    Environment { radiance: Rgb },
+    /// Radiance W/(m^2 sr) arriving from every direction at infinity (a constant sky or
+    /// a lat-long map); camera rays that leave the scene see it.
+    Environment(Environment),
 }
 
 /// What one imported file (OBJ, glTF, USD) contributes; mesh materials index `materials`.

@@ -17,7 +17,7 @@ use crate::core::Ray;
 use crate::core::Rgb;
 use crate::geometry::{Geometry, EPS};
 use crate::media::Media;
-use crate::sampling::Rng;
+use crate::sampling::{cosine_hemisphere, Rng};
 use crate::scene::Light;
 
 /// Equiangular sampling (Kulla and Fajardo 2012) of t in [a, b] along `ray` for a light at
@@ -143,21 +143,33 @@ impl Direct<'_> {
     }
 
     /// Direct radiance reflected at a Lambert point `p` (normal `n` on the viewer's side,
-    /// reflectance `rho`) from one light sample.
+    /// reflectance `rho`) from one light sample, plus, for the environment, one cosine-
+    /// weighted direction: the two combined by the balance heuristic, so neither a sun
+    /// in the map (found by the light sample) nor a wide sky (by the cosine) is noisy.
     pub fn at_surface(&self, p: Vec3, n: Vec3, rho: Rgb, rng: &mut Rng, c: &mut Counters) -> Rgb {
         let Some((light, prob)) = self.lights.pick(rng.f32()) else {
             return Rgb::ZERO;
         };
         let origin = p + n * EPS;
-        let Some(s) = light.sample(origin, rng.vec2()) else {
-            return Rgb::ZERO;
-        };
-        let cos = n.dot(s.dir);
-        if cos <= 0.0 {
-            return Rgb::ZERO;
+        let mut l = Rgb::ZERO;
+        if let Some(s) = light.sample(origin, rng.vec2()) {
+            let cos = n.dot(s.dir);
+            if cos > 0.0 {
+                let w = light_weight(light, s.dir, cos / PI);
+                let tr = self.shadow(origin, s.dir, s.dist, rng, c);
+                l += s.value * (cos * tr * w);
+            }
         }
-        let tr = self.shadow(origin, s.dir, s.dist, rng, c);
-        rho / PI * s.value * (cos * tr / prob)
+        if light.is_background() {
+            let dir = cosine_hemisphere(n, rng.vec2());
+            let pdf = n.dot(dir) / PI;
+            let le = light.background(dir);
+            if pdf > 0.0 && le.max_element() > 0.0 {
+                let tr = self.shadow(origin, dir, f32::INFINITY, rng, c);
+                l += le * (pdf * PI * tr / (pdf + light.pdf(dir)));
+            }
+        }
+        rho / PI * l / prob
     }
 
     /// Single-scattered direct light along the camera segment [0, t_surf) of `ray`, whose
@@ -229,7 +241,8 @@ impl Direct<'_> {
     }
 
     /// sigma_s f times the light's shadowed radiance at distance t along the camera ray,
-    /// times the camera transmittance there.
+    /// times the camera transmittance there. For the environment, a direction drawn by
+    /// the phase function joins the light sample (balance heuristic, as at surfaces).
     fn scattered(
         &self,
         ray: &Ray,
@@ -240,19 +253,51 @@ impl Direct<'_> {
         c: &mut Counters,
     ) -> Rgb {
         let x = ray.at(t);
-        let Some(s) = light.sample(x, rng.vec2()) else {
-            return Rgb::ZERO;
-        };
-        // Light travels along -dir, and on towards the camera along -ray.d.
-        let f = self.media().in_scatter(x, s.dir.dot(ray.d));
-        if f.max_element() <= 0.0 {
-            return Rgb::ZERO;
+        let media = self.media();
+        let mut l = Rgb::ZERO;
+        if let Some(s) = light.sample(x, rng.vec2()) {
+            // Light travels along -dir, and on towards the camera along -ray.d.
+            let cos = s.dir.dot(ray.d);
+            let f = media.in_scatter(x, cos);
+            let tr = if f.max_element() > 0.0 {
+                cam_tr(t)
+            } else {
+                0.0
+            };
+            if tr > 0.0 {
+                let w = light_weight(light, s.dir, media.phase_pdf(x, cos));
+                l += f * s.value * (tr * w * self.shadow(x, s.dir, s.dist, rng, c));
+            }
         }
-        let tr = cam_tr(t);
-        if tr <= 0.0 {
-            return Rgb::ZERO;
+        if light.is_background() {
+            if let Some((_, phase)) = media.pick_collider(x, rng.f32()) {
+                let dir = phase.sample(ray.d, rng.f32(), rng.f32());
+                let cos = dir.dot(ray.d);
+                let (f, pdf) = (media.in_scatter(x, cos), media.phase_pdf(x, cos));
+                let le = light.background(dir);
+                let tr = if pdf > 0.0 && le.max_element() > 0.0 {
+                    cam_tr(t)
+                } else {
+                    0.0
+                };
+                if tr > 0.0 {
+                    let shadow = self.shadow(x, dir, f32::INFINITY, rng, c);
+                    l += f * le * (tr * shadow / (pdf + light.pdf(dir)));
+                }
+            }
         }
-        f * s.value * (tr * self.shadow(x, s.dir, s.dist, rng, c))
+        l
+    }
+}
+
+/// Balance-heuristic weight of a light sample in direction `dir` against another
+/// strategy's density there; 1 for the lights only a light sample can find.
+fn light_weight(light: &Light, dir: Vec3, other_pdf: f32) -> f32 {
+    if light.is_background() {
+        let pdf = light.pdf(dir);
+        pdf / (pdf + other_pdf)
+    } else {
+        1.0
     }
 }
 

@@ -55,9 +55,7 @@ impl Light {
                 radius, radiance, ..
             } => radiance * PI * 4.0 * PI * radius * radius,
             // pi R^2 of disk per unit solid angle, over the whole sphere of directions.
-            Light::Environment { radiance } => {
-                radiance * 4.0 * PI * PI * scene_radius * scene_radius
-            }
+            Light::Environment(ref env) => env.integral() * PI * scene_radius * scene_radius,
         }
     }
 
@@ -94,14 +92,16 @@ impl Light {
                 dir: direction,
                 power,
             },
-            // A uniform direction of travel (every direction carries the same radiance),
-            // the power spread over the sphere of directions by their density 1/(4 pi).
-            Light::Environment { .. } => {
-                let dir = uniform_sphere(u2);
+            // A direction drawn as next-event estimation draws it (by the map's luminance,
+            // or uniformly), travelling the other way; the disk's pi R^2 times the radiance
+            // over the direction's density.
+            Light::Environment(ref env) => {
+                let (towards, radiance, pdf) = env.sample(u2);
+                let dir = -towards;
                 Emission {
                     origin: disk_origin(dir, scene_center, scene_radius, u1),
                     dir,
-                    power,
+                    power: radiance * (PI * scene_radius * scene_radius / pdf),
                 }
             }
             Light::Sphere { center, radius, .. } => {
@@ -150,12 +150,14 @@ impl Light {
                 radius,
                 radiance,
             } => sphere(center, radius, radiance, x, u),
-            // A uniform direction: density 1/(4 pi) sr^-1.
-            Light::Environment { radiance } => Some(LightSample {
-                dir: uniform_sphere(u),
-                dist: f32::INFINITY,
-                value: radiance * (4.0 * PI),
-            }),
+            Light::Environment(ref env) => {
+                let (dir, radiance, pdf) = env.sample(u);
+                (pdf > 0.0).then(|| LightSample {
+                    dir,
+                    dist: f32::INFINITY,
+                    value: radiance / pdf,
+                })
+            }
         }
     }
 
@@ -166,10 +168,20 @@ impl Light {
 
     /// Radiance a ray leaving the scene along `dir` sees of the light: the environment's,
     /// 0 for the others.
-    pub fn background(&self, _dir: Vec3) -> Rgb {
-        match *self {
-            Light::Environment { radiance } => radiance,
+    pub fn background(&self, dir: Vec3) -> Rgb {
+        match self {
+            Light::Environment(env) => env.eval(dir),
             _ => Rgb::ZERO,
+        }
+    }
+
+    /// The solid-angle density with which [`Self::sample`] draws `dir` for the lights a
+    /// direction drawn by a BSDF or phase function can also find (the environment); 0
+    /// for the others, whose light sample is then the only strategy.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        match self {
+            Light::Environment(env) => env.pdf(dir),
+            _ => 0.0,
         }
     }
 

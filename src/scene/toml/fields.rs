@@ -133,9 +133,32 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 outer_deg: outer,
             }
         }
-        FileLight::Environment { radiance } => Light::Environment {
-            radiance: ck.nonneg3(&f("radiance"), *radiance)?,
-        },
+        FileLight::Environment {
+            radiance,
+            map,
+            rotation,
+        } => {
+            let radiance = match (radiance, map) {
+                (Some(r), _) => ck.nonneg3(&f("radiance"), *r)?,
+                (None, Some(_)) => Vec3::ONE,
+                (None, None) => {
+                    return Err(ck.err(
+                        &f("radiance"),
+                        "expected radiance = [r, g, b] (a constant sky) or a map".into(),
+                    ))
+                }
+            };
+            let rotation = match rotation {
+                Some(r) => {
+                    ck.in_range(&f("rotation"), *r, -360.0, 360.0, "degrees in [-360, 360]")?
+                }
+                None => 0.0,
+            };
+            Light::Environment(Environment {
+                rotation_deg: rotation,
+                ..Environment::constant(radiance)
+            })
+        }
         FileLight::Directional {
             direction,
             irradiance,
@@ -192,4 +215,18 @@ pub(super) fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> R
         ));
     }
     Ok([lo, hi])
+}
+
+/// The lat-long map of environment light `i`, read through the load's file reader.
+pub(super) fn environment_map(
+    ck: &Check,
+    i: usize,
+    path: &Path,
+    cache: &AssetCache,
+) -> Result<Arc<EnvMap>> {
+    let bytes = cache
+        .files()
+        .read(path)
+        .map_err(|e| ck.err(&format!("light[{i}].map"), e.to_string()))?;
+    Ok(Arc::new(EnvMap::decode(path, &bytes)?))
 }

@@ -2,6 +2,7 @@
 //! errors; every value is checked and a bad one is reported as `file: field: problem`.
 use glam::Vec3;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 mod check;
 mod fields;
@@ -11,7 +12,7 @@ mod schema;
 use super::assets::AssetCache;
 use super::grids::GridFile;
 use super::medium::{toml_field, MediumSpec, TransformSpec};
-use super::{Camera, Format, Imported, Light, Material, NamedMaterial, Scene};
+use super::{Camera, EnvMap, Environment, Format, Imported, Light, Material, NamedMaterial, Scene};
 use crate::core::frames::{self, at_frame};
 use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
@@ -250,7 +251,15 @@ fn build(path: &Path, file: FileScene, cache: &mut AssetCache) -> Result<SceneFi
         merge(&mut scene, imported, over);
     }
     for (i, l) in file.light.iter().enumerate() {
-        scene.lights.push(light(&ck, i, l)?);
+        let mut light = light(&ck, i, l)?;
+        if let (FileLight::Environment { map: Some(m), .. }, Light::Environment(env)) =
+            (l, &mut light)
+        {
+            let p = dir.join(m);
+            env.map = Some(environment_map(&ck, i, &p, cache)?);
+            sources.push(p);
+        }
+        scene.lights.push(light);
     }
     for (i, m) in file.medium.iter().enumerate() {
         if let FileMedium::Grid { path: p, .. } = m {

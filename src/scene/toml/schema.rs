@@ -106,7 +106,12 @@ pub(super) enum FileLight {
         outer_deg: Option<f32>,
     },
     Environment {
-        radiance: [f32; 3],
+        /// The constant sky's radiance, or the map's multiplier (default 1).
+        radiance: Option<[f32; 3]>,
+        /// A lat-long map (.exr, .hdr), relative to the scene file.
+        map: Option<String>,
+        /// Degrees about +Y.
+        rotation: Option<f32>,
     },
     Directional {
         direction: [f32; 3],

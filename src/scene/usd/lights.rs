@@ -43,8 +43,8 @@ impl Ctx<'_> {
                 radiance: l.as_vec3(),
             }
         };
-        self.out.lights.push(light);
         self.note(format!("imported SphereLight {p} as {light:?}"));
+        self.out.lights.push(light);
         Ok(())
     }
 
@@ -63,8 +63,8 @@ impl Ctx<'_> {
             direction: d.as_vec3(),
             irradiance: e.as_vec3(),
         };
-        self.out.lights.push(light);
         self.note(format!("imported DistantLight {p} as {light:?}"));
+        self.out.lights.push(light);
         Ok(())
     }
 
@@ -79,11 +79,9 @@ impl Ctx<'_> {
             ));
             return Ok(());
         }
-        let light = Light::Environment {
-            radiance: self.lux_radiance(p)?.as_vec3(),
-        };
-        self.out.lights.push(light);
+        let light = Light::Environment(Environment::constant(self.lux_radiance(p)?.as_vec3()));
         self.note(format!("imported DomeLight {p} as {light:?}"));
+        self.out.lights.push(light);
         Ok(())
     }
 
