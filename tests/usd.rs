@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use ppb::scene::usd::load_usd;
-use ppb::scene::{Environment, Imported, Light, Material, Mesh};
+use ppb::scene::{Imported, Light, Material, Mesh};
 use serde_json::Value;
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/usd/stage/");
@@ -444,11 +444,21 @@ def Xform "World"
         .contains(&"imported Mesh /World/Tri (1 triangles)".to_string()));
 }
 
-/// A DomeLight without a texture is a constant environment of intensity x 2^exposure x
-/// color, whatever its transform; a textured one is left out with a note saying why.
+/// A DomeLight is an environment of intensity x 2^exposure x color, turned by its world
+/// transform's rotation: constant without a texture, else its lat-long map (read, and
+/// listed among the files the stage read). Other texture formats are left out with a
+/// note; a missing map is an error naming the prim and the file.
 #[test]
-fn dome_lights_become_constant_environments() {
+fn dome_lights_become_environments_with_their_transform() {
     let dir = scratch("dome");
+    exr::prelude::write_rgb_file(dir.join("sky.exr"), 8, 4, |i, j| {
+        if (i, j) == (2, 1) {
+            (9.0, 8.0, 7.0)
+        } else {
+            (0.1, 0.2, 0.3)
+        }
+    })
+    .expect("writes the map");
     let body = format!(
         r#"{HEADER}
 def Xform "World"
@@ -463,23 +473,64 @@ def Xform "World"
     }}
     def DomeLight "Map"
     {{
+        float inputs:intensity = 3
         asset inputs:texture:file = @sky.exr@
+        token inputs:texture:format = "latlong"
+        double3 xformOp:rotateXYZ = (0, -90, 0)
+        double3 xformOp:scale = (2, 2, 2)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ", "xformOp:scale"]
+    }}
+    def DomeLight "Ball"
+    {{
+        asset inputs:texture:file = @sky.exr@
+        token inputs:texture:format = "mirroredBall"
     }}
 }}
 "#
     );
     let p = write_stage(&dir, "dome.usda", &body);
     let imp = load_usd(&p).expect("imports");
-    assert_eq!(
-        imp.lights,
-        [Light::Environment(Environment::constant(Vec3::new(
-            2.0, 4.0, 1.0
-        )))]
+    assert_eq!(imp.lights.len(), 2, "{:?}", imp.notes);
+    let Light::Environment(sky) = &imp.lights[0] else {
+        panic!("expected an environment, got {:?}", imp.lights[0])
+    };
+    assert_eq!(sky.radiance, Vec3::new(2.0, 4.0, 1.0));
+    assert!(sky.map.is_none());
+    let turned = |deg: f32| glam::Mat3::from_rotation_y(deg.to_radians());
+    assert!(
+        sky.to_world.abs_diff_eq(turned(90.0), 1e-6),
+        "{}",
+        sky.to_world
     );
-    assert!(imp
-        .notes
-        .iter()
-        .any(|n| n.starts_with("ignored DomeLight /World/Map: its texture map is not read")));
+    let Light::Environment(map) = &imp.lights[1] else {
+        panic!("expected an environment, got {:?}", imp.lights[1])
+    };
+    assert_eq!(map.radiance, Vec3::splat(3.0));
+    assert_eq!(map.map.as_ref().expect("the map is read").size(), (8, 4));
+    assert!(
+        map.to_world.abs_diff_eq(turned(-90.0), 1e-6),
+        "{}",
+        map.to_world
+    );
+    // Texel (2, 1)'s centre, u = 2.5 / 8 and v = 1.5 / 4, seen in the world turned by -90.
+    let m = ppb::scene::environment::uv_to_dir(glam::Vec2::new(2.5 / 8.0, 1.5 / 4.0));
+    let seen = map.eval(turned(-90.0) * m);
+    assert!(
+        (seen - Vec3::new(27.0, 24.0, 21.0)).length() < 1e-3,
+        "{seen}"
+    );
+    assert!(
+        imp.files.iter().any(|f| f.ends_with("sky.exr")),
+        "{:?}",
+        imp.files
+    );
+    assert!(imp.notes.iter().any(|n| n
+        == "ignored DomeLight /World/Ball: texture format \"mirroredBall\" (only latlong maps are read)"));
+
+    let missing = body.replace("@sky.exr@", "@nowhere.exr@");
+    let p = write_stage(&dir, "missing.usda", &missing);
+    let e = load_usd(&p).expect_err("the map is missing").to_string();
+    assert!(e.contains("/World/Map") && e.contains("nowhere.exr"), "{e}");
 }
 
 fn err_text(p: &Path) -> String {

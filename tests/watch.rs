@@ -224,6 +224,41 @@ fn vdb_change_rebuilds_one_octree_and_light_edits_none() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Writes a 16 x 8 lat-long map of constant `radiance` as EXR, by rename (as a paint or
+/// bake tool saving over it).
+fn save_map(path: &Path, radiance: f32) {
+    let tmp = path.with_file_name(".sky.tmp.exr");
+    exr::prelude::write_rgb_file(&tmp, 16, 8, |_, _| (radiance, radiance, radiance)).unwrap();
+    std::fs::rename(&tmp, path).unwrap();
+}
+
+/// A changed environment map is read again and relights the image (4x the radiance, 4x
+/// the image); the scene file itself is untouched.
+#[test]
+fn environment_map_change_relights() {
+    let dir = common::temp_dir("watch", "envmap");
+    write_floor(&dir);
+    let map = dir.join("sky.exr");
+    save_map(&map, 0.5);
+    let light = "[[light]]\ntype = \"environment\"\nmap = \"sky.exr\"";
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, scene_text(light, "")).unwrap();
+    let out = dir.join("out.exr");
+    let mut w = Watch::start(&scene, &out, &[]);
+    w.wait("the first output", |w| w.count("preview") >= 1);
+    let base = mean(&out).unwrap();
+    assert!(base > 0.0, "the sky lights the floor");
+    save_map(&map, 2.0);
+    w.wait("the brighter image", |w| {
+        let m = mean(&out).unwrap();
+        w.count("reload 2") >= 1 && m > 3.5 * base && m < 4.5 * base
+    });
+    let log = w.log();
+    let line = log.lines().find(|l| l.contains("reload 2")).unwrap();
+    assert!(line.contains("lights"), "{line}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// 100 random edits while `ppb watch` runs: truncated and garbage scene files, files
 /// caught half-written, assets deleted, truncated and re-created, scenes renamed away and
 /// back. It never dies, the output is always a complete EXR, and every tenth edit

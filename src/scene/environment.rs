@@ -13,7 +13,7 @@
 //! bilinear luminance over it, then a direction uniformly in solid angle inside the cell.
 //! Every direction the bilinear radiance can light has a positive density, so the estimate
 //! is unbiased, and its density follows the map's luminance.
-use glam::{Vec2, Vec3};
+use glam::{Mat3, Vec2, Vec3};
 use std::f32::consts::PI;
 use std::fmt;
 use std::path::Path;
@@ -240,13 +240,13 @@ fn decode_hdr(path: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<[f32; 3]>)
 }
 
 /// Radiance arriving from every direction at infinity: `radiance` times the map (or
-/// constant without one), the map turned by `rotation_deg` about +Y (right-handed: 90
-/// brings the map's -Z, u = 0, to world -X).
+/// constant without one), the map's directions turned into the world's by `to_world`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Environment {
     pub radiance: Rgb,
     pub map: Option<Arc<EnvMap>>,
-    pub rotation_deg: f32,
+    /// An orthonormal matrix, map space to world.
+    pub to_world: Mat3,
 }
 
 impl Environment {
@@ -254,18 +254,25 @@ impl Environment {
         Environment {
             radiance,
             map: None,
-            rotation_deg: 0.0,
+            to_world: Mat3::IDENTITY,
+        }
+    }
+
+    /// The map turned by `degrees` about +Y (right-handed: 90 brings the map's -Z, its
+    /// u = 0, to world -X).
+    pub fn turned_about_y(self, degrees: f32) -> Self {
+        Environment {
+            to_world: Mat3::from_rotation_y(degrees.to_radians()),
+            ..self
         }
     }
 
     fn to_map(&self, d: Vec3) -> Vec3 {
-        let (s, c) = self.rotation_deg.to_radians().sin_cos();
-        Vec3::new(c * d.x - s * d.z, d.y, s * d.x + c * d.z)
+        self.to_world.transpose() * d
     }
 
     fn to_world(&self, m: Vec3) -> Vec3 {
-        let (s, c) = self.rotation_deg.to_radians().sin_cos();
-        Vec3::new(c * m.x + s * m.z, m.y, -s * m.x + c * m.z)
+        self.to_world * m
     }
 
     /// Radiance arriving from world direction `d` (W/(m^2 sr)).
@@ -458,10 +465,10 @@ mod tests {
     fn rotation_turns_lookup_and_sampling_together() {
         let m = Arc::new(test_map());
         let env = Environment {
-            radiance: Vec3::splat(2.0),
             map: Some(m.clone()),
-            rotation_deg: 90.0,
-        };
+            ..Environment::constant(Vec3::splat(2.0))
+        }
+        .turned_about_y(90.0);
         let d = Vec3::new(0.3, 0.2, -0.9).normalize();
         let turned = Vec3::new(d.z, d.y, -d.x);
         assert!((env.eval(turned) - 2.0 * m.eval(d)).length() < 1e-4);

@@ -154,10 +154,7 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 }
                 None => 0.0,
             };
-            Light::Environment(Environment {
-                rotation_deg: rotation,
-                ..Environment::constant(radiance)
-            })
+            Light::Environment(Environment::constant(radiance).turned_about_y(rotation))
         }
         FileLight::Directional {
             direction,

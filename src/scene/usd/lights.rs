@@ -68,21 +68,74 @@ impl Ctx<'_> {
         Ok(())
     }
 
-    /// DomeLight without a texture: a constant environment of radiance
-    /// [`Self::lux_radiance`] (its transform turns nothing that is constant). A textured
-    /// dome (`inputs:texture:file`) is left out with a note: lat-long maps are not read
-    /// yet, and a constant stand-in would light the scene wrongly.
+    /// DomeLight: radiance [`Self::lux_radiance`] times its lat-long texture, if any
+    /// (`inputs:texture:file`, format `latlong` or `automatic`; UsdLux's lat-long is
+    /// OpenEXR's, the same as ppb's), turned by the rotation of the prim's world
+    /// transform (its scale dropped; a shear is an error). Other texture formats are
+    /// left out with a note.
     pub(super) fn dome_light(&mut self, p: &sdf::Path) -> Result<()> {
-        if self.value(p, "inputs:texture:file")?.is_some() {
-            self.note(format!(
-                "ignored DomeLight {p}: its texture map is not read (maps are not supported yet)"
-            ));
-            return Ok(());
-        }
-        let light = Light::Environment(Environment::constant(self.lux_radiance(p)?.as_vec3()));
+        let radiance = self.lux_radiance(p)?.as_vec3();
+        let to_world = self.dome_rotation(p)?;
+        let names = ["inputs:texture:file", "texture:file"];
+        let map = match names
+            .iter()
+            .find(|n| matches!(self.value(p, n), Ok(Some(_))))
+        {
+            None => None,
+            Some(name) => {
+                let format = match self.token(p, "inputs:texture:format")? {
+                    Some(f) => Some(f),
+                    None => self.token(p, "texture:format")?,
+                };
+                let format = format.unwrap_or_else(|| "automatic".into());
+                if !matches!(format.as_str(), "automatic" | "latlong") {
+                    self.note(format!(
+                        "ignored DomeLight {p}: texture format \"{format}\" (only latlong maps are read)"
+                    ));
+                    return Ok(());
+                }
+                let file = self.asset_path(p, name)?;
+                if self.probe {
+                    if !file.is_file() {
+                        return Err(
+                            self.err(p, format!("{name}: {} does not exist", file.display()))
+                        );
+                    }
+                    return Ok(());
+                }
+                let cannot = |e: Error| self.err(p, format!("{name}: cannot load the map: {e}"));
+                let bytes = self.files.read(&file).map_err(cannot)?;
+                let map = EnvMap::decode(&file, &bytes).map_err(cannot)?;
+                self.out.files.push(file);
+                Some(Arc::new(map))
+            }
+        };
+        let light = Light::Environment(Environment {
+            radiance,
+            map,
+            to_world,
+        });
         self.note(format!("imported DomeLight {p} as {light:?}"));
         self.out.lights.push(light);
         Ok(())
+    }
+
+    /// The rotation of the prim's world transform: its columns normalised, which must
+    /// then be orthonormal (a rotation, or a mirror, with any scale per axis).
+    fn dome_rotation(&mut self, p: &sdf::Path) -> Result<glam::Mat3> {
+        let m = glam::DMat3::from_mat4(self.world(p)?);
+        let cols = [m.x_axis, m.y_axis, m.z_axis].map(|c| c.normalize_or_zero());
+        let orthonormal = cols.iter().all(|c| c.length() > 0.5)
+            && cols[0].dot(cols[1]).abs() < 1e-4
+            && cols[1].dot(cols[2]).abs() < 1e-4
+            && cols[0].dot(cols[2]).abs() < 1e-4;
+        if !orthonormal {
+            return Err(self.err(
+                p,
+                "the transform shears or collapses the dome (expected a rotation, with any scale)",
+            ));
+        }
+        Ok(glam::DMat3::from_cols(cols[0], cols[1], cols[2]).as_mat3())
     }
 
     /// Camera: vfov = 2 atan(verticalAperture / (2 focalLength)) (fallbacks 15.2908 and

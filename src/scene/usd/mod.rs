@@ -43,7 +43,7 @@ mod volume;
 
 use super::files::Files;
 use super::medium::{usd_field, MediumSpec, TransformSpec};
-use super::{Camera, Environment, Imported, Light, Material, Mesh, NamedMaterial};
+use super::{Camera, EnvMap, Environment, Imported, Light, Material, Mesh, NamedMaterial};
 use crate::error::{Error, Result};
 use crate::media::GridMedium;
 use resolver::ReadOnce;
