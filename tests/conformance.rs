@@ -315,6 +315,21 @@ fn cloud_hg_matches_reference() {
     );
 }
 
+/// cloud-hg's cloud and floor under a lat-long sky map with a sun (this repository's
+/// reference, `tests/data/conformance/cloud-sky/`): the map's importance sampling, its
+/// MIS with the phase function and the cosine, and its beams in the pure method.
+#[test]
+fn cloud_sky_matches_reference() {
+    // Reference block noise from its reference.json.
+    check_methods(
+        "scenes/conformance/cloud-sky/scene.toml",
+        "tests/data/conformance/cloud-sky/reference.exr",
+        None,
+        96,
+        (REF_NOISE_CLOUD_SKY, 0.01),
+    );
+}
+
 /// Switching the free-path sampler changes only the noise: adaptive and Woodcock renders
 /// of smoke-grid differ by what their own noise predicts. Two renders of one sampler
 /// differ by sqrt(2) times its per-render error, renders of the two samplers by the
