@@ -467,8 +467,8 @@ impl Sky {
     /// The whole map, sky and sun: `width x height` texels, row-major, row 0 at the top (+Y),
     /// in the module's lat-long convention. Sky texels hold the radiance at their centre
     /// (the horizon row: times its fraction above the horizon); the sun disk is added with
-    /// the exact fraction of each texel's solid angle it covers (supersampled), so the sun's
-    /// power in the map does not depend on the resolution.
+    /// the fraction of each texel's solid angle it covers (integrated in strips, exact in
+    /// azimuth), so the sun's power in the map does not depend on the resolution.
     pub fn bake(&self, width: usize, height: usize) -> Vec<[f32; 3]> {
         let mut map = self.bake_sky64(width, height);
         self.add_sun(&mut map, width, height);
@@ -889,6 +889,24 @@ mod tests {
         assert!(a > 0.0 && rel(a, b) < 1e-3, "{a} {b}");
         let lit = (0..w * h).filter(|&k| m[k][1] > 0.0).count();
         assert_eq!(lit, 2);
+    }
+
+    /// Published cross-check of the chain spectrum -> CIE 1931 -> Rec.709: the extraterrestrial
+    /// sun is close to white (chromaticity near D65's (0.3127, 0.3290); sunlight outside the
+    /// atmosphere is ~5800 K), and the atmosphere makes it yellower at high sun.
+    #[test]
+    fn sun_colour_is_near_white_outside_the_atmosphere() {
+        let xy = |xyz: [f64; 3]| {
+            let s = xyz[0] + xyz[1] + xyz[2];
+            (xyz[0] / s, xyz[1] / s)
+        };
+        let (x, y) = xy(sun_xyz(0.0, 2.0, false));
+        assert!(
+            (x - 0.3127).abs() < 0.01 && (y - 0.3290).abs() < 0.01,
+            "{x} {y}"
+        );
+        let (xa, ya) = xy(sun_xyz(0.0, 2.0, true));
+        assert!(xa > x && ya > y && xa < 0.35, "{xa} {ya}");
     }
 
     /// The map's sun irradiance on a plane facing the sun (sum over texels of L * texel solid
