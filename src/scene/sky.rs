@@ -169,10 +169,10 @@ const LAMBDA0: f64 = 380.0;
 const N_LAMBDA: usize = 38;
 
 /// Extraterrestrial solar spectral radiance, W/(m^2 sr nm), 380..=750 nm every 10 nm: the
-/// table the paper's authors distributed with their reference implementation of appendix A.1
-/// (the same values are in Mitsuba 0.5, `src/emitters/sunsky/sunmodel.h`). Check: times
-/// `pi sin^2(0.2665 deg)` and integrated against 683 ybar it gives 127.9 klx, the published
-/// solar illuminance constant of ~128 klx.
+/// table that implementations of the paper's appendix A.1 use (transcribed from Mitsuba 0.5,
+/// `src/emitters/sunsky/sunmodel.h`, which carries the paper's sun model; the paper itself
+/// could not be consulted offline). Checked: times `pi sin^2(0.2665 deg)` and integrated
+/// against 683 ybar it gives 127.9 klx, the published solar illuminance constant (~128 klx).
 const SOLAR: [f64; N_LAMBDA] = [
     16559.0, 16233.7, 21127.5, 25888.2, 25829.1, 24232.3, 26760.5, 29658.3, 30545.4, 30057.5,
     30663.7, 28830.4, 28712.1, 27825.0, 27100.6, 27233.6, 26361.3, 25503.8, 25060.2, 25311.6,
