@@ -9,6 +9,7 @@ pub mod gltf;
 pub mod grids;
 pub mod medium;
 pub mod obj;
+pub mod sky;
 pub mod toml;
 pub mod usd;
 
