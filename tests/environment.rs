@@ -254,3 +254,45 @@ fn the_camera_sees_the_map_in_the_stated_convention() {
         assert!(worst < 0.02, "rotation {rotation}: {worst}");
     }
 }
+
+const SKY: &str = "[[light]]\ntype = \"sky\"\nsun_elevation = 35\nsun_azimuth = 120\nturbidity = 3\nsun_size = 3\nresolution = 256\nradiance = [0.01, 0.01, 0.01]\n";
+
+/// The Preetham sky (`type = "sky"`) is an environment map like any other: a Lambert
+/// floor under it reflects rho / pi times its cosine-weighted integral, by both methods.
+#[test]
+fn lambert_floor_under_the_preetham_sky() {
+    let text = FLOOR.replace(
+        "[[light]]\ntype = \"environment\"\nradiance = [0.8, 0.8, 0.8]\n",
+        SKY,
+    );
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/env-sky.toml");
+    let file = parse(&path, &format!("{text}\n{RENDER}")).expect("scene parses");
+    let want = floor_radiance(&file.scene.lights[0], 0.5);
+    check("env-sky", &text, "hybrid", 80, want);
+    check("env-sky", &text, "ppb", 80, want);
+}
+
+/// A sky outside the model's range is an error naming the light's field.
+#[test]
+fn sky_parameters_are_checked() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/env-sky.toml");
+    for (from, to, field) in [
+        ("turbidity = 3", "turbidity = 12", "light[0].turbidity"),
+        (
+            "sun_elevation = 35",
+            "sun_elevation = -5",
+            "light[0].sun_elevation",
+        ),
+        ("resolution = 256", "resolution = 4", "light[0].resolution"),
+    ] {
+        let text = FLOOR.replace(
+            "[[light]]\ntype = \"environment\"\nradiance = [0.8, 0.8, 0.8]\n",
+            &SKY.replace(from, to),
+        );
+        let Err(e) = parse(&path, &format!("{text}\n{RENDER}")) else {
+            panic!("{field}: {to} was accepted")
+        };
+        let e = e.to_string();
+        assert!(e.contains(field) && e.contains("expected"), "{e}");
+    }
+}

@@ -71,6 +71,14 @@ pub fn uv_to_dir(uv: Vec2) -> Vec3 {
     Vec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p)
 }
 
+/// The direction texel (i, j) of a `width` x `height` map stands for (its centre).
+pub fn texel_direction(i: usize, j: usize, width: usize, height: usize) -> Vec3 {
+    uv_to_dir(Vec2::new(
+        (i as f32 + 0.5) / width as f32,
+        (j as f32 + 0.5) / height as f32,
+    ))
+}
+
 impl EnvMap {
     /// A map of `width` x `height` linear RGB texels, row 0 at the top. Negative values
     /// (resampling ringing) read as 0; a non-finite texel is an error naming it.

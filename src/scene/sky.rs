@@ -42,7 +42,9 @@
 //! `u = atan2(d.x, -d.z) / (2 pi) mod 1`, `v = acos(d.y) / pi`. +Y is up, right-handed.
 use std::f64::consts::PI;
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
+
+use super::environment::uv_to_dir;
 
 /// The real sun's angular radius, degrees.
 pub const SUN_RADIUS_DEG: f32 = 0.2665;
@@ -288,30 +290,6 @@ fn sun_xyz(theta_s: f64, t: f64, attenuate: bool) -> [f64; 3] {
     xyz
 }
 
-/// Direction of lat-long coordinates `(u, v)`.
-fn uv_to_dir(u: f64, v: f64) -> DVec3 {
-    let (st, ct) = (PI * v).sin_cos();
-    let (sp, cp) = (2.0 * PI * u).sin_cos();
-    DVec3::new(st * sp, ct, -st * cp)
-}
-
-/// The direction texel `(i, j)` of a `width x height` lat-long map stands for (its centre).
-pub fn texel_direction(i: usize, j: usize, width: usize, height: usize) -> Vec3 {
-    let u = (i as f64 + 0.5) / width as f64;
-    let v = (j as f64 + 0.5) / height as f64;
-    uv_to_dir(u, v).as_vec3()
-}
-
-/// Lat-long coordinates `(u, v)` in `[0, 1) x [0, 1]` of unit direction `d`.
-pub fn direction_to_uv(d: Vec3) -> (f32, f32) {
-    let u = (d.x as f64).atan2(-d.z as f64) / (2.0 * PI);
-    let v = (d.y as f64).clamp(-1.0, 1.0).acos() / PI;
-    (
-        (u.rem_euclid(1.0) as f32).min(1.0 - f32::EPSILON / 2.0),
-        v as f32,
-    )
-}
-
 /// Strips (in cos theta) per texel row when the sun disk's coverage of a texel is integrated.
 const SUN_STRIPS: usize = 256;
 
@@ -336,27 +314,22 @@ impl Sky {
     }
 
     /// Checks the fields; the error names the field and what was expected.
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |name: &str, x: f32, ok: bool, what: &str| {
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let check = |name: &'static str, x: f32, ok: bool, what: &str| {
             if x.is_finite() && ok {
                 Ok(())
             } else {
-                Err(format!("sky.{name}: expected {what}, got {x}"))
+                Err((name, format!("expected {what}, got {x}")))
             }
         };
         let e = self.sun_elevation_deg;
         check(
-            "sun_elevation_deg",
+            "sun_elevation",
             e,
             (0.0..=90.0).contains(&e),
             "degrees in [0, 90] (the model is for the sun above the horizon)",
         )?;
-        check(
-            "sun_azimuth_deg",
-            self.sun_azimuth_deg,
-            true,
-            "finite degrees",
-        )?;
+        check("sun_azimuth", self.sun_azimuth_deg, true, "finite degrees")?;
         let t = self.turbidity;
         check(
             "turbidity",
@@ -366,7 +339,7 @@ impl Sky {
         )?;
         let s = self.sun_size_deg;
         check(
-            "sun_size_deg",
+            "sun_size",
             s,
             s > 0.0 && s <= 20.0,
             "an angular radius in (0, 20] degrees",
@@ -492,7 +465,7 @@ impl Sky {
             };
             for i in 0..width {
                 let u = (i as f64 + 0.5) / width as f64;
-                let rgb = self.radiance64(uv_to_dir(u, v));
+                let rgb = self.radiance64(uv_to_dir(Vec2::new(u as f32, v as f32)).as_dvec3());
                 map[j * width + i] = rgb.map(|c| c * frac);
             }
         }
@@ -588,6 +561,7 @@ impl Sky {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::environment::{dir_to_uv, texel_direction};
 
     fn rel(a: f64, b: f64) -> f64 {
         (a - b).abs() / b.abs().max(1e-30)
@@ -773,7 +747,7 @@ mod tests {
                 assert!(sun.iter().all(|c| c.is_finite() && *c >= 0.0) && lum(sun) > 0.0);
                 for j in 0..=40 {
                     for i in 0..36 {
-                        let d = uv_to_dir(i as f64 / 36.0, j as f64 / 40.0).as_vec3();
+                        let d = uv_to_dir(Vec2::new(i as f32 / 36.0, j as f32 / 40.0));
                         let rgb = sky.radiance(d);
                         assert!(rgb.iter().all(|c| c.is_finite() && *c >= 0.0), "{rgb:?}");
                         if d.y < -1e-6 {
@@ -794,16 +768,17 @@ mod tests {
         let bad = |f: fn(&mut Sky), field: &str| {
             let mut s = Sky::default();
             f(&mut s);
-            let e = s.validate().unwrap_err();
-            assert!(e.contains(field), "{e}");
+            let (name, msg) = s.validate().unwrap_err();
+            assert_eq!(name, field, "{msg}");
+            assert!(msg.starts_with("expected "), "{msg}");
         };
-        bad(|s| s.sun_elevation_deg = -1.0, "sun_elevation_deg");
-        bad(|s| s.sun_elevation_deg = 90.5, "sun_elevation_deg");
-        bad(|s| s.sun_elevation_deg = f32::NAN, "sun_elevation_deg");
+        bad(|s| s.sun_elevation_deg = -1.0, "sun_elevation");
+        bad(|s| s.sun_elevation_deg = 90.5, "sun_elevation");
+        bad(|s| s.sun_elevation_deg = f32::NAN, "sun_elevation");
         bad(|s| s.turbidity = 1.9, "turbidity");
         bad(|s| s.turbidity = 10.5, "turbidity");
-        bad(|s| s.sun_azimuth_deg = f32::INFINITY, "sun_azimuth_deg");
-        bad(|s| s.sun_size_deg = 0.0, "sun_size_deg");
+        bad(|s| s.sun_azimuth_deg = f32::INFINITY, "sun_azimuth");
+        bad(|s| s.sun_size_deg = 0.0, "sun_size");
     }
 
     #[test]
@@ -816,14 +791,15 @@ mod tests {
         let (w, h) = (16, 8);
         for j in 0..h {
             for i in 0..w {
-                let (u, v) = direction_to_uv(texel_direction(i, j, w, h));
+                let uv = dir_to_uv(texel_direction(i, j, w, h));
+                let (u, v) = (uv.x, uv.y);
                 assert!((u - (i as f32 + 0.5) / w as f32).abs() < 1e-5);
                 assert!((v - (j as f32 + 0.5) / h as f32).abs() < 1e-5);
             }
         }
         // u = 0.25 is +X, v = 0 is +Y.
-        let d = uv_to_dir(0.25, 0.5);
-        assert!((d - DVec3::X).length() < 1e-12);
+        let d = uv_to_dir(Vec2::new(0.25, 0.5));
+        assert!((d - Vec3::X).length() < 1e-6);
     }
 
     /// Sun-only part of a baked map.
@@ -872,7 +848,8 @@ mod tests {
             let m = sun_map(&sky, w, h);
             let lit: Vec<usize> = (0..w * h).filter(|&k| m[k][1] > 0.0).collect();
             assert_eq!(lit, vec![j_want * w + i_want], "az {az}");
-            let (u, v) = direction_to_uv(sky.sun_direction());
+            let uv = dir_to_uv(sky.sun_direction());
+            let (u, v) = (uv.x, uv.y);
             assert_eq!(
                 ((u * w as f32) as usize, (v * h as f32) as usize),
                 (i_want, j_want)

@@ -156,6 +156,47 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
             };
             Light::Environment(Environment::constant(radiance).turned_about_y(rotation))
         }
+        FileLight::Sky {
+            sun_elevation,
+            sun_azimuth,
+            turbidity,
+            sun_size,
+            radiance,
+            resolution,
+        } => {
+            let d = Sky::default();
+            let sky = Sky {
+                sun_elevation_deg: *sun_elevation,
+                sun_azimuth_deg: sun_azimuth.unwrap_or(d.sun_azimuth_deg),
+                turbidity: turbidity.unwrap_or(d.turbidity),
+                sun_size_deg: sun_size.unwrap_or(d.sun_size_deg),
+            };
+            sky.validate()
+                .map_err(|(field, msg)| ck.err(&f(field), msg))?;
+            let width = ck.in_range(
+                &f("resolution"),
+                resolution.unwrap_or(SKY_RESOLUTION) as f32,
+                8.0,
+                16384.0,
+                "a map width in [8, 16384] texels",
+            )? as usize;
+            let height = width / 2;
+            let texels = sky.bake(width, height);
+            let name = format!(
+                "Preetham sky, sun at {} deg elevation, {} deg azimuth, turbidity {}",
+                sky.sun_elevation_deg, sky.sun_azimuth_deg, sky.turbidity
+            );
+            let map =
+                EnvMap::new(width, height, &texels, &name).map_err(|m| ck.err(&f("type"), m))?;
+            let radiance = match radiance {
+                Some(r) => ck.nonneg3(&f("radiance"), *r)?,
+                None => Vec3::ONE,
+            };
+            Light::Environment(Environment {
+                map: Some(Arc::new(map)),
+                ..Environment::constant(radiance)
+            })
+        }
         FileLight::Directional {
             direction,
             irradiance,
@@ -213,6 +254,9 @@ pub(super) fn check_bounds(ck: &Check, field: &str, bounds: &[[f32; 3]; 2]) -> R
     }
     Ok([lo, hi])
 }
+
+/// Texels across a baked sky map: 0.35 degrees each, about the real sun's diameter.
+const SKY_RESOLUTION: u32 = 1024;
 
 /// The lat-long map of environment light `i`, read through the load's file reader.
 pub(super) fn environment_map(

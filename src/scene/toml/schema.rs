@@ -113,6 +113,17 @@ pub(super) enum FileLight {
         /// Degrees about +Y.
         rotation: Option<f32>,
     },
+    /// The Preetham sky with its sun, baked into a map.
+    Sky {
+        sun_elevation: f32,
+        sun_azimuth: Option<f32>,
+        turbidity: Option<f32>,
+        /// The sun's angular radius, degrees.
+        sun_size: Option<f32>,
+        radiance: Option<[f32; 3]>,
+        /// Map width in texels (height half of it).
+        resolution: Option<u32>,
+    },
     Directional {
         direction: [f32; 3],
         irradiance: [f32; 3],
