@@ -290,6 +290,28 @@ fn sun_xyz(theta_s: f64, t: f64, attenuate: bool) -> [f64; 3] {
     xyz
 }
 
+/// Adds radiance `ground` below the horizon of a `width` x `height` map (the model's ground
+/// is black): a row that straddles the horizon gets it in proportion to its solid angle
+/// below.
+pub fn add_ground(map: &mut [[f32; 3]], width: usize, height: usize, ground: [f32; 3]) {
+    for j in 0..height {
+        let (v0, v1) = (j as f64 / height as f64, (j + 1) as f64 / height as f64);
+        let below = if v1 <= 0.5 {
+            continue;
+        } else if v0 >= 0.5 {
+            1.0
+        } else {
+            let (c0, c1) = ((PI * v0).cos(), (PI * v1).cos());
+            -c1 / (c0 - c1)
+        };
+        for t in &mut map[j * width..(j + 1) * width] {
+            for c in 0..3 {
+                t[c] += (below as f32) * ground[c];
+            }
+        }
+    }
+}
+
 /// Strips (in cos theta) per texel row when the sun disk's coverage of a texel is integrated.
 const SUN_STRIPS: usize = 256;
 

@@ -163,6 +163,7 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
             sun_size,
             radiance,
             resolution,
+            ground,
         } => {
             let d = Sky::default();
             let sky = Sky {
@@ -181,7 +182,11 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 "a map width in [8, 16384] texels",
             )? as usize;
             let height = width / 2;
-            let texels = sky.bake(width, height);
+            let mut texels = sky.bake(width, height);
+            if let Some(g) = ground {
+                let g = ck.nonneg3(&f("ground"), *g)?;
+                add_ground(&mut texels, width, height, g.into());
+            }
             let name = format!(
                 "Preetham sky, sun at {} deg elevation, {} deg azimuth, turbidity {}",
                 sky.sun_elevation_deg, sky.sun_azimuth_deg, sky.turbidity

@@ -123,6 +123,8 @@ pub(super) enum FileLight {
         radiance: Option<[f32; 3]>,
         /// Map width in texels (height half of it).
         resolution: Option<u32>,
+        /// Radiance below the horizon (before `radiance`; the model's ground is black).
+        ground: Option<[f32; 3]>,
     },
     Directional {
         direction: [f32; 3],
