@@ -87,6 +87,11 @@ pub struct Overrides {
     /// reaches a given error sooner; ppb reproduces the paper's tables.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
+    /// Transparent film (overrides [render].transparent): the environment is hidden from
+    /// camera rays that leave the scene, and the EXR gets an alpha channel (A) for
+    /// compositing over another background.
+    #[arg(long)]
+    pub transparent: bool,
 }
 
 impl Overrides {
@@ -124,6 +129,7 @@ impl Overrides {
         if let Some(m) = self.method {
             s.method = m;
         }
+        s.transparent |= self.transparent;
         if let Err(e) = s.validate() {
             let flag = match e.field {
                 "width" | "height" => "--size".to_string(),
@@ -361,6 +367,7 @@ impl OutputMeta<'_> {
             ("ppb/passes", self.passes.to_string()),
             ("ppb/render_seconds", format!("{:.3}", self.seconds)),
             ("ppb/method", format!("{:?}", s.method).to_lowercase()),
+            ("ppb/transparent", s.transparent.to_string()),
             ("ppb/light_paths", s.light_paths.to_string()),
             ("ppb/alpha", s.alpha.to_string()),
             ("ppb/photon_alpha", s.photon_alpha.to_string()),

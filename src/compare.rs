@@ -105,6 +105,7 @@ pub fn block_mean(img: &Image, k: usize) -> Image {
         width: w,
         height: h,
         pixels,
+        alpha: None,
     }
 }
 
@@ -136,6 +137,7 @@ mod tests {
             width: 2,
             height: 1,
             pixels: vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]],
+            alpha: None,
         };
         let mut x = r.clone();
         x.pixels[0][0] = 2.0;
@@ -148,6 +150,7 @@ mod tests {
                 width: 2,
                 height: 2,
                 pixels: vec![[1.0; 3], [3.0; 3], [5.0; 3], [7.0; 3]],
+                alpha: None,
             },
             2,
         );

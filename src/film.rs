@@ -17,6 +17,8 @@ pub struct Film {
     pub width: u32,
     pub height: u32,
     sum: Vec<[i128; 3]>,
+    /// Alpha sums (a transparent film), else empty.
+    alpha: Vec<i128>,
     passes: u32,
 }
 
@@ -36,6 +38,7 @@ impl Film {
             width,
             height,
             sum: vec![[0; 3]; (width * height) as usize],
+            alpha: Vec::new(),
             passes: 0,
         }
     }
@@ -47,7 +50,42 @@ impl Film {
             width,
             height,
             sum,
+            alpha: Vec::new(),
             passes,
+        })
+    }
+
+    /// With stored alpha sums (one per pixel); None when the count does not match.
+    pub fn with_alpha_sums(self, alpha: Vec<i128>) -> Option<Self> {
+        (alpha.len() == self.sum.len()).then_some(Film { alpha, ..self })
+    }
+
+    /// The fixed-point alpha sums (empty unless the film is transparent).
+    pub fn alpha_sums(&self) -> &[i128] {
+        &self.alpha
+    }
+
+    /// Adds a pass's alpha (transparent film; nothing when `alpha` is empty).
+    pub fn add_alpha(&mut self, alpha: &[f32]) {
+        if alpha.is_empty() {
+            return;
+        }
+        if self.alpha.is_empty() {
+            self.alpha = vec![0; self.sum.len()];
+        }
+        for (s, &a) in self.alpha.iter_mut().zip(alpha) {
+            *s += fixed(a);
+        }
+    }
+
+    /// The mean alpha over passes, when the film is transparent.
+    pub fn alpha(&self) -> Option<Vec<f32>> {
+        let inv = 1.0 / self.passes.max(1) as f64;
+        (!self.alpha.is_empty()).then(|| {
+            self.alpha
+                .iter()
+                .map(|&s| (float(s) * inv) as f32)
+                .collect()
         })
     }
 
@@ -79,6 +117,12 @@ impl Film {
             for c in 0..3 {
                 s[c] += o[c];
             }
+        }
+        if self.alpha.is_empty() {
+            self.alpha = vec![0; other.alpha.len()];
+        }
+        for (s, o) in self.alpha.iter_mut().zip(&other.alpha) {
+            *s += o;
         }
         self.passes += other.passes;
     }

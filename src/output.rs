@@ -14,6 +14,8 @@ pub struct Image {
     pub width: usize,
     pub height: usize,
     pub pixels: Vec<[f32; 3]>,
+    /// Coverage of each pixel, written as the EXR's A channel (transparent film only).
+    pub alpha: Option<Vec<f32>>,
 }
 
 /// An EXR header besides the pixels: OpenEXR's standard attributes where one exists,
@@ -98,20 +100,43 @@ pub fn write_exr(path: &Path, img: &Image, meta: &ExrMeta) -> Result<()> {
     write_atomic(path, |tmp| {
         let px = &img.pixels;
         let w = img.width;
-        let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
-            let v = px[p.y() * w + p.x()];
-            (v[0], v[1], v[2])
-        });
-        let layer = Layer::new(
-            (img.width, img.height),
-            meta.layer_attributes(),
-            Encoding::SMALL_LOSSLESS,
-            channels,
-        );
-        exr::prelude::Image::from_layer(layer)
-            .write()
-            .to_file(tmp)
-            .map_err(|e| Error::format(path, format!("writing EXR: {e}")))
+        let size = (img.width, img.height);
+        let bad = |e: exr::error::Error| Error::format(path, format!("writing EXR: {e}"));
+        match &img.alpha {
+            None => {
+                let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
+                    let v = px[p.y() * w + p.x()];
+                    (v[0], v[1], v[2])
+                });
+                let layer = Layer::new(
+                    size,
+                    meta.layer_attributes(),
+                    Encoding::SMALL_LOSSLESS,
+                    channels,
+                );
+                exr::prelude::Image::from_layer(layer)
+                    .write()
+                    .to_file(tmp)
+                    .map_err(bad)
+            }
+            Some(alpha) => {
+                let channels = SpecificChannels::rgba(|p: Vec2<usize>| {
+                    let i = p.y() * w + p.x();
+                    let v = px[i];
+                    (v[0], v[1], v[2], alpha[i])
+                });
+                let layer = Layer::new(
+                    size,
+                    meta.layer_attributes(),
+                    Encoding::SMALL_LOSSLESS,
+                    channels,
+                );
+                exr::prelude::Image::from_layer(layer)
+                    .write()
+                    .to_file(tmp)
+                    .map_err(bad)
+            }
+        }
     })
 }
 
@@ -192,6 +217,7 @@ pub fn decode_exr(path: &Path, bytes: &[u8]) -> Result<Image> {
         width: size.width(),
         height: size.height(),
         pixels: image.layer_data.channel_data.pixels.1,
+        alpha: None,
     })
 }
 
@@ -218,7 +244,8 @@ pub fn tone_map(pixels: &[[f32; 3]], exposure: f32) -> Vec<[u8; 4]> {
         .collect()
 }
 
-/// PNG preview: the [`tone_map`] of the image, 8-bit RGB.
+/// PNG preview: the [`tone_map`] of the image, 8-bit RGB (a transparent film's image as
+/// it is, over black: its alpha is in the EXR only).
 pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<()> {
     let bytes: Vec<u8> = tone_map(&img.pixels, exposure)
         .into_iter()
@@ -259,6 +286,7 @@ mod tests {
             width: 3,
             height: 2,
             pixels: (0..6).map(|i| [i as f32, 0.5, -1.0]).collect(),
+            alpha: None,
         };
         let mut meta = ExrMeta::text(&[("ppb/passes", "7".into())]);
         meta.frames_per_second = Some(24.0);

@@ -201,6 +201,7 @@ impl Tracer {
                 free_path,
                 samples: s.nee_samples,
             }),
+            transparent: s.transparent,
         };
         let camera = ct.trace_pass(p.seed, p.index, strat);
         let t3 = Instant::now();

@@ -157,6 +157,7 @@ impl Session {
         let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
         let t1 = Instant::now();
         self.film.add_pass(&traced.camera.image);
+        self.film.add_alpha(&traced.camera.alpha);
         let evals =
             self.beams
                 .get()
@@ -221,6 +222,7 @@ impl Session {
             width: self.film.width as usize,
             height: self.film.height as usize,
             pixels,
+            alpha: self.film.alpha(),
         })
     }
 

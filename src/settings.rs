@@ -39,6 +39,10 @@ pub struct RenderSettings {
     pub method: Method,
     /// Light samples per camera segment in media (hybrid method's single scattering).
     pub nee_samples: usize,
+    /// Film transparency (Cycles' "transparent" film): camera rays that leave the scene
+    /// see nothing of the environment, and the image gets an alpha channel, 1 - the
+    /// transmittance of each camera ray that leaves (1 where it hits a surface).
+    pub transparent: bool,
 }
 
 /// How light reaches the camera.
@@ -73,6 +77,7 @@ impl Default for RenderSettings {
             octree_depth: crate::majorant::DEFAULT_MAX_DEPTH,
             method: Method::Hybrid,
             nee_samples: DEFAULT_NEE_SAMPLES,
+            transparent: false,
         }
     }
 }

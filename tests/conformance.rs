@@ -93,6 +93,7 @@ fn block_mask(path: &str) -> Vec<bool> {
 
 fn average(a: &Image, b: &Image) -> Image {
     Image {
+        alpha: None,
         pixels: a
             .pixels
             .iter()

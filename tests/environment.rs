@@ -296,3 +296,63 @@ fn sky_parameters_are_checked() {
         assert!(e.contains(field) && e.contains("expected"), "{e}");
     }
 }
+
+/// A transparent film (`--transparent`, Cycles' film transparency): camera rays that leave
+/// the scene show nothing of the environment, and the EXR's A channel holds 1 minus the
+/// transmittance of each camera ray that leaves. The furnace's box is homogeneous, so
+/// that transmittance is exact: alpha = 1 - exp(-1.5 chord) through the box (the middle
+/// pixel: chord 2), and 0 with black radiance where the ray misses it.
+#[test]
+fn transparent_film_hides_the_environment_and_writes_alpha() {
+    let dir = common::temp_dir("env", "transparent");
+    let scene = dir.join("scene.toml");
+    std::fs::write(
+        &scene,
+        FURNACE.replace(
+            "beam_radius = 0.005",
+            "width = 40\nheight = 40\npasses = 4\nlight_paths = 20000",
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out.exr");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_ppb"))
+        .args(["render", "--quiet", "--transparent", "-o"])
+        .arg(&out)
+        .arg(&scene)
+        .status()
+        .expect("runs ppb");
+    assert!(status.success());
+    let img = exr::prelude::read_first_rgba_layer_from_file(
+        &out,
+        |res, _| (res.width(), vec![[0f32; 4]; res.width() * res.height()]),
+        |(w, px): &mut (usize, Vec<[f32; 4]>), p, (r, g, b, a): (f32, f32, f32, f32)| {
+            px[p.y() * *w + p.x()] = [r, g, b, a];
+        },
+    )
+    .expect("reads the EXR");
+    let meta = exr::meta::MetaData::read_from_file(&out, false).expect("EXR header");
+    let names: Vec<String> = meta.headers[0]
+        .channels
+        .list
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect();
+    assert_eq!(names, ["A", "B", "G", "R"], "an RGBA EXR");
+    let px = &img.layer_data.channel_data.pixels.1;
+    let (corner, middle) = (px[0], px[20 * 40 + 20]);
+    assert_eq!(
+        corner, [0.0; 4],
+        "the hidden environment: black and transparent"
+    );
+    // The middle pixel's rays run within 0.1 degrees of the axis: chords within 0.1 % of 2.
+    let want = 1.0 - (-1.5f32 * 2.0).exp();
+    assert!(
+        (middle[3] - want).abs() < 2e-3,
+        "alpha {} vs {want}",
+        middle[3]
+    );
+    assert!(
+        middle[1] > 0.1,
+        "the box still scatters the environment's light: {middle:?}"
+    );
+}

@@ -107,6 +107,7 @@ fn merge_frame(args: &MergeArgs, parts: Vec<Part>, frame: Option<u32>) -> Result
         width: film.width as usize,
         height: film.height as usize,
         pixels: film.image(),
+        alpha: film.alpha(),
     };
     let mut meta = header.exr.clone();
     meta.set("ppb/passes", header.passes.to_string());

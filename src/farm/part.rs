@@ -109,6 +109,10 @@ impl Part {
                 bytes.extend_from_slice(&c.to_le_bytes());
             }
         }
+        // A transparent film's alpha sums follow, 16 bytes a pixel.
+        for a in film.alpha_sums() {
+            bytes.extend_from_slice(&a.to_le_bytes());
+        }
         let hash = blake3::hash(&bytes);
         bytes.extend_from_slice(hash.as_bytes());
         write_atomic(path, |tmp| {
@@ -134,10 +138,11 @@ impl Part {
         let header: PartHeader = serde_json::from_slice(&body[12..12 + len])
             .map_err(|e| bad(&format!("header: {e}")))?;
         let data = &body[12 + len..];
-        let bytes = (header.width as u64)
-            .checked_mul(header.height as u64)
-            .and_then(|p| p.checked_mul(48));
-        if bytes != Some(data.len() as u64) {
+        let pixels = header.width as u64 * header.height as u64;
+        // RGB sums (48 bytes a pixel), then alpha sums (16) for a transparent film.
+        let rgb = pixels.checked_mul(48);
+        let with_alpha = pixels.checked_mul(64);
+        if rgb != Some(data.len() as u64) && with_alpha != Some(data.len() as u64) {
             return Err(bad(&format!(
                 "{} bytes of sums for {}x{} pixels",
                 data.len(),
@@ -148,6 +153,7 @@ impl Part {
         if header.done > header.range.len() {
             return Err(bad("more passes done than its range holds"));
         }
+        let (data, alpha) = data.split_at(rgb.unwrap_or(0) as usize);
         let sums = data
             .chunks_exact(48)
             .map(|px| {
@@ -156,8 +162,17 @@ impl Part {
                 })
             })
             .collect();
-        let film = Film::from_sums(header.width, header.height, header.done, sums)
+        let mut film = Film::from_sums(header.width, header.height, header.done, sums)
             .ok_or_else(|| bad("size does not match the sums"))?;
+        if !alpha.is_empty() {
+            let alpha = alpha
+                .chunks_exact(16)
+                .map(|a| i128::from_le_bytes(a.try_into().unwrap_or_default()))
+                .collect();
+            film = film
+                .with_alpha_sums(alpha)
+                .ok_or_else(|| bad("alpha sums do not match the size"))?;
+        }
         Ok(Part {
             path: path.to_path_buf(),
             header,
@@ -316,6 +331,33 @@ mod tests {
             .contains("checksum"));
         std::fs::write(&a.path, &bytes[..n - 40]).unwrap();
         assert!(Part::read(&a.path).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A transparent film's alpha sums travel in its part and merge like the colour.
+    #[test]
+    fn alpha_sums_round_trip_and_merge() {
+        let dir = std::env::temp_dir().join(format!("ppb-part-alpha-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let film = |range: (u32, u32)| {
+            let mut f = Film::new(2, 1);
+            for i in range.0..range.1 {
+                f.add_pass(&[Vec3::splat(i as f32), Vec3::ONE]);
+                f.add_alpha(&[0.25 * i as f32, 1.0]);
+            }
+            f
+        };
+        let write = |range: (u32, u32)| {
+            let path = dir.join(format!("a{}-{}.ppbpart", range.0, range.1));
+            Part::write(&path, &header(range, range.1 - range.0), &film(range)).unwrap();
+            Part::read(&path).unwrap()
+        };
+        let (a, b, whole) = (write((0, 1)), write((1, 4)), write((0, 4)));
+        assert_eq!(whole.film, film((0, 4)));
+        let (_, merged) = merge(vec![a, b]).unwrap();
+        assert_eq!(merged, whole.film);
+        let alpha = merged.alpha().expect("a transparent film");
+        assert!((alpha[0] - 0.375).abs() < 1e-6 && (alpha[1] - 1.0).abs() < 1e-6);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -28,10 +28,11 @@ pub const MAX_SPECULAR: u32 = 64;
 /// Dielectric hits (per path) at which both Fresnel branches are followed.
 pub const SPLIT_DEPTH: u32 = 2;
 
-/// Where a camera path records its secondary segments.
+/// Where a camera path records its secondary segments, and its alpha (transparent film).
 struct Out<'a> {
     pixel: u32,
     segments: &'a mut Vec<Secondary>,
+    alpha: f32,
 }
 
 #[derive(Clone, Copy)]
@@ -186,6 +187,8 @@ pub struct Secondary {
 pub struct CameraPass {
     /// Radiance of every pixel except the beam estimate (emitters, photons).
     pub image: Vec<Rgb>,
+    /// Alpha of every pixel with a transparent film (else empty).
+    pub alpha: Vec<f32>,
     /// One per pixel, row-major.
     pub primaries: Vec<Primary>,
     /// In pixel order.
@@ -220,6 +223,9 @@ pub struct CameraTracer<'a> {
     pub photons: &'a dyn SurfaceEstimate,
     /// Next-event estimation of direct light (the hybrid method), or None (pure PPB).
     pub direct: Option<Direct<'a>>,
+    /// Transparent film: camera rays that leave the scene see no environment and give
+    /// the pixel's alpha.
+    pub transparent: bool,
 }
 
 impl CameraTracer<'_> {
@@ -249,7 +255,7 @@ impl CameraTracer<'_> {
             None => (None, Vec::new()),
         };
         rows_mut.resize_with(h, || None);
-        type Row = (Vec<(Rgb, Primary)>, Vec<Secondary>, Counters);
+        type Row = (Vec<(Rgb, Primary, f32)>, Vec<Secondary>, Counters);
         let rows: Vec<Row> = rows_mut
             .into_par_iter()
             .enumerate()
@@ -281,8 +287,10 @@ impl CameraTracer<'_> {
                         let mut out = Out {
                             pixel: idx as u32,
                             segments: &mut secondary,
+                            alpha: 1.0,
                         };
-                        self.radiance(ray, &mut rng, &mut c, strat, &mut out)
+                        let (l, p) = self.radiance(ray, &mut rng, &mut c, strat, &mut out);
+                        (l, p, out.alpha)
                     })
                     .collect();
                 (row, secondary, c)
@@ -290,14 +298,18 @@ impl CameraTracer<'_> {
             .collect();
         let mut pass = CameraPass {
             image: Vec::with_capacity(w * h),
+            alpha: Vec::new(),
             primaries: Vec::with_capacity(w * h),
             secondary: Vec::new(),
             counters: Counters::default(),
         };
         for (row, secondary, c) in rows {
-            for (l, p) in row {
+            for (l, p, a) in row {
                 pass.image.push(l);
                 pass.primaries.push(p);
+                if self.transparent {
+                    pass.alpha.push(a);
+                }
             }
             pass.secondary.extend(secondary);
             pass.counters.add(&c);
@@ -348,9 +360,15 @@ impl CameraTracer<'_> {
         while st.depth < MAX_SPECULAR {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
+            let primary = first.is_some();
             l += self.segment(&ray, t_surf, &mut st, first.take(), rng, c, out);
             let Some(h) = hit else {
-                l += st.beta * self.lights.background(ray.d);
+                if primary && self.transparent {
+                    // What is left of the camera ray shows the background behind.
+                    out.alpha = 1.0 - st.beta.element_sum() / 3.0;
+                } else {
+                    l += st.beta * self.lights.background(ray.d);
+                }
                 break;
             };
             let material = match h.surface {
@@ -421,7 +439,7 @@ impl CameraTracer<'_> {
         let beta = st.beta;
         // To the surface, or to infinity for a path that leaves the scene when a light
         // there (the environment) is what it will see.
-        let reaches = t_surf.is_finite() || self.lights.at_infinity();
+        let reaches = t_surf.is_finite() || self.lights.at_infinity() || self.transparent;
         if !self.media.is_empty() && !st.in_glass && reaches {
             let tau = self.media.optical_depth(ray, 0.0, t_surf);
             st.beta *= (-tau).exp() * gtr.eval(t_surf);

@@ -29,6 +29,7 @@ pub(super) fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettin
         exposure: r.exposure.unwrap_or(d.exposure),
         tr_samples: r.tr_samples.unwrap_or(d.tr_samples),
         nee_samples: r.nee_samples.unwrap_or(d.nee_samples),
+        transparent: r.transparent.unwrap_or(d.transparent),
         tr_block: r.tr_block.unwrap_or(d.tr_block),
         tr_mode: ck.word(
             "render.transmittance",

@@ -43,6 +43,7 @@ pub(super) struct FileRender {
     pub(super) free_path: Option<String>,
     pub(super) method: Option<String>,
     pub(super) nee_samples: Option<usize>,
+    pub(super) transparent: Option<bool>,
 }
 
 #[derive(Deserialize)]
