@@ -488,6 +488,7 @@ fn one_pixel_on_gpu(
         index: 1,
         camera: CameraPass {
             image: vec![Vec3::ZERO],
+            alpha: Vec::new(),
             primaries: vec![Primary {
                 dir,
                 t_surf,
