@@ -420,6 +420,7 @@ fn beam_estimate_tracks_camera_transmittance() {
             let pass = TracedPass {
                 index,
                 camera: CameraPass {
+                    alpha: Vec::new(),
                     image: vec![Vec3::ZERO; pixels],
                     primaries: vec![
                         Primary {
