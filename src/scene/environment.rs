@@ -234,11 +234,27 @@ impl EnvMap {
 }
 
 /// Radiance HDR through the `image` crate's decoder (RGBE, flat or run-length rows).
+///
+/// The header's size is checked against the file's before the pixels are allocated (12
+/// bytes each), as for EXR: run-length rows pack at most 127 texels' bytes into 2, so a
+/// file holds at most 64 texels per byte, and a damaged header claiming more is refused
+/// instead of asking for an allocation that would abort the process.
 fn decode_hdr(path: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<[f32; 3]>)> {
     use image::ImageDecoder;
     let bad = |e: image::ImageError| Error::format(path, format!("reading Radiance HDR: {e}"));
     let dec = image::codecs::hdr::HdrDecoder::new(std::io::Cursor::new(bytes)).map_err(bad)?;
     let (w, h) = dec.dimensions();
+    let texels = w as u64 * h as u64;
+    let limit = (1u64 << 22).max(bytes.len() as u64 * 64);
+    if texels > limit {
+        return Err(Error::format(
+            path,
+            format!(
+                "Radiance HDR of {w} x {h} texels cannot be stored in {} bytes",
+                bytes.len()
+            ),
+        ));
+    }
     let mut buf = vec![0u8; dec.total_bytes() as usize];
     dec.read_image(&mut buf).map_err(bad)?;
     let floats: &[f32] = bytemuck::try_cast_slice(&buf)
@@ -510,6 +526,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("sky.hdr") && e.contains("Radiance HDR"), "{e}");
+        // A header claiming 10^10 texels in a few bytes is refused before any allocation.
+        let huge = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n";
+        let e = EnvMap::decode(Path::new("huge.hdr"), huge)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("huge.hdr") && e.contains("100000 x 100000"),
+            "{e}"
+        );
     }
 
     /// A Radiance file written by the `image` crate's encoder reads back within RGBE's
