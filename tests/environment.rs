@@ -356,3 +356,32 @@ fn transparent_film_hides_the_environment_and_writes_alpha() {
         "the box still scatters the environment's light: {middle:?}"
     );
 }
+
+/// Bad environment lights in a scene file are errors naming the field: a missing map
+/// (and the file), a light with neither radiance nor map, a rotation out of range.
+#[test]
+fn environment_fields_are_checked() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/env-bad.toml");
+    let with = |light: &str| {
+        let text = FLOOR.replace(
+            "[[light]]\ntype = \"environment\"\nradiance = [0.8, 0.8, 0.8]\n",
+            light,
+        );
+        match parse(&path, &format!("{text}\n{RENDER}")) {
+            Ok(_) => panic!("accepted: {light}"),
+            Err(e) => e.to_string(),
+        }
+    };
+    let e = with("[[light]]\ntype = \"environment\"\nmap = \"nowhere/sky.exr\"\n");
+    assert!(
+        e.contains("light[0].map") && e.contains("nowhere/sky.exr"),
+        "{e}"
+    );
+    let e = with("[[light]]\ntype = \"environment\"\n");
+    assert!(
+        e.contains("light[0].radiance") && e.contains("or a map"),
+        "{e}"
+    );
+    let e = with("[[light]]\ntype = \"environment\"\nradiance = [1, 1, 1]\nrotation = 400\n");
+    assert!(e.contains("light[0].rotation"), "{e}");
+}
