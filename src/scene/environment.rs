@@ -28,10 +28,7 @@ const LUMINANCE: Vec3 = Vec3::new(0.2126, 0.7152, 0.0722);
 
 /// A lat-long radiance map with its sampling distribution.
 pub struct EnvMap {
-    width: usize,
-    height: usize,
-    /// Row-major, row 0 at +Y.
-    texels: Vec<Rgb>,
+    texels: Texels,
     cells: Discrete,
     /// The integral of the map's radiance over the sphere (piecewise constant texels).
     integral: Rgb,
@@ -46,14 +43,14 @@ impl fmt::Debug for EnvMap {
         write!(
             f,
             "EnvMap({} x {} from {})",
-            self.width, self.height, self.name
+            self.texels.width, self.texels.height, self.name
         )
     }
 }
 
 impl PartialEq for EnvMap {
     fn eq(&self, other: &Self) -> bool {
-        (self.width, self.height, self.hash) == (other.width, other.height, other.hash)
+        (self.size(), self.hash) == (other.size(), other.hash)
     }
 }
 
@@ -102,30 +99,24 @@ impl EnvMap {
                 pixels[i]
             ));
         }
-        let texels: Vec<Rgb> = pixels
-            .iter()
-            .map(|p| Vec3::from(*p).max(Vec3::ZERO))
-            .collect();
+        let texels = Texels {
+            width,
+            height,
+            data: pixels
+                .iter()
+                .map(|p| Vec3::from(*p).max(Vec3::ZERO))
+                .collect(),
+        };
         let mut hasher = blake3::Hasher::new();
         hasher.update(bytemuck::cast_slice(pixels));
         hasher.update(&(width as u64).to_le_bytes());
-        let mut map = EnvMap {
-            width,
-            height,
+        Ok(EnvMap {
+            cells: Discrete::new(texels.cell_weights()).ok_or("the map is black everywhere")?,
+            integral: texels.integral(),
             texels,
-            cells: Discrete::new([1.0]).expect("a positive weight"),
-            integral: Rgb::ZERO,
             hash: *hasher.finalize().as_bytes(),
             name: name.to_string(),
-        };
-        map.integral = (0..height)
-            .map(|j| {
-                let row: Rgb = (0..width).map(|i| map.texel(i as isize, j as isize)).sum();
-                row * map.cell_solid_angle(j)
-            })
-            .sum();
-        map.cells = Discrete::new(map.cell_weights()).ok_or("the map is black everywhere")?;
-        Ok(map)
+        })
     }
 
     /// Reads an OpenEXR (`.exr`) or Radiance (`.hdr`, `.pic`) lat-long map from its bytes.
@@ -151,7 +142,12 @@ impl EnvMap {
     }
 
     pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+        (self.texels.width, self.texels.height)
+    }
+
+    /// Radiance seen along unit map-space direction `d` (bilinear).
+    pub fn eval(&self, d: Vec3) -> Rgb {
+        self.texels.eval(d)
     }
 
     /// Integral of the radiance over the sphere of directions (W/m^2 per channel).
@@ -159,11 +155,40 @@ impl EnvMap {
         self.integral
     }
 
+    /// A map-space direction drawn by the cells' distribution, with its solid-angle pdf.
+    pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
+        let (cell, prob, rest) = self.cells.sample(u.x);
+        let (i, j) = (cell % self.texels.width, cell / self.texels.width);
+        let (c0, c1) = self.texels.row_cos(j);
+        let cos_t = c0 + (c1 - c0) * u.y;
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let phi = 2.0 * PI * (i as f32 + rest) / self.texels.width as f32;
+        let d = Vec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
+        (d, prob / self.texels.cell_solid_angle(j))
+    }
+
+    /// The solid-angle pdf of [`Self::sample`] drawing map-space direction `d`.
+    pub fn pdf(&self, d: Vec3) -> f32 {
+        let uv = dir_to_uv(d);
+        let i = ((uv.x * self.texels.width as f32) as usize).min(self.texels.width - 1);
+        let j = ((uv.y * self.texels.height as f32) as usize).min(self.texels.height - 1);
+        self.cells.prob(j * self.texels.width + i) / self.texels.cell_solid_angle(j)
+    }
+}
+
+/// A map's texels, row-major with row 0 at +Y: its lookup and its cells' geometry.
+struct Texels {
+    width: usize,
+    height: usize,
+    data: Vec<Rgb>,
+}
+
+impl Texels {
     /// Texel (i, j): periodic in i, clamped in j.
     fn texel(&self, i: isize, j: isize) -> Rgb {
         let i = i.rem_euclid(self.width as isize) as usize;
         let j = j.clamp(0, self.height as isize - 1) as usize;
-        self.texels[j * self.width + i]
+        self.data[j * self.width + i]
     }
 
     /// cos theta at the top and bottom of row j.
@@ -199,8 +224,20 @@ impl EnvMap {
         w
     }
 
+    /// The integral of the radiance over the sphere, the texels piecewise constant.
+    fn integral(&self) -> Rgb {
+        (0..self.height)
+            .map(|j| {
+                let row: Rgb = (0..self.width)
+                    .map(|i| self.texel(i as isize, j as isize))
+                    .sum();
+                row * self.cell_solid_angle(j)
+            })
+            .sum()
+    }
+
     /// Radiance seen along unit map-space direction `d` (bilinear).
-    pub fn eval(&self, d: Vec3) -> Rgb {
+    fn eval(&self, d: Vec3) -> Rgb {
         let uv = dir_to_uv(d);
         let x = uv.x * self.width as f32 - 0.5;
         let y = uv.y * self.height as f32 - 0.5;
@@ -210,26 +247,6 @@ impl EnvMap {
         let top = self.texel(i, j).lerp(self.texel(i + 1, j), fx);
         let bottom = self.texel(i, j + 1).lerp(self.texel(i + 1, j + 1), fx);
         top.lerp(bottom, fy)
-    }
-
-    /// A map-space direction drawn by the cells' distribution, with its solid-angle pdf.
-    pub fn sample(&self, u: Vec2) -> (Vec3, f32) {
-        let (cell, prob, rest) = self.cells.sample(u.x);
-        let (i, j) = (cell % self.width, cell / self.width);
-        let (c0, c1) = self.row_cos(j);
-        let cos_t = c0 + (c1 - c0) * u.y;
-        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-        let phi = 2.0 * PI * (i as f32 + rest) / self.width as f32;
-        let d = Vec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
-        (d, prob / self.cell_solid_angle(j))
-    }
-
-    /// The solid-angle pdf of [`Self::sample`] drawing map-space direction `d`.
-    pub fn pdf(&self, d: Vec3) -> f32 {
-        let uv = dir_to_uv(d);
-        let i = ((uv.x * self.width as f32) as usize).min(self.width - 1);
-        let j = ((uv.y * self.height as f32) as usize).min(self.height - 1);
-        self.cells.prob(j * self.width + i) / self.cell_solid_angle(j)
     }
 }
 
@@ -390,9 +407,9 @@ mod tests {
             uv_to_dir(Vec2::new((i as f32 + 0.5) / 16.0, (j as f32 + 0.5) / 8.0))
         };
         assert!((m.eval(centre(5, 2)) - Vec3::new(40.0, 30.0, 20.0)).length() < 1e-3);
-        assert!((m.eval(centre(3, 4)) - m.texel(3, 4)).length() < 1e-5);
+        assert!((m.eval(centre(3, 4)) - m.texels.texel(3, 4)).length() < 1e-5);
         let seam = m.eval(uv_to_dir(Vec2::new(0.0, 4.5 / 8.0)));
-        let want = 0.5 * (m.texel(0, 4) + m.texel(15, 4));
+        let want = 0.5 * (m.texels.texel(0, 4) + m.texels.texel(15, 4));
         assert!((seam - want).length() < 1e-4, "{seam} vs {want}");
     }
 
@@ -445,7 +462,7 @@ mod tests {
                         mean += lum(m.eval(uv_to_dir(Vec2::new(u, v))));
                     }
                 }
-                share[j * w + i] = mean / (q * q) as f64 * m.cell_solid_angle(j) as f64;
+                share[j * w + i] = mean / (q * q) as f64 * m.texels.cell_solid_angle(j) as f64;
             }
         }
         let total: f64 = share.iter().sum();
@@ -457,7 +474,7 @@ mod tests {
             let uv = dir_to_uv(d);
             let x = ((uv.x * 2.0 * w as f32) as usize).min(2 * w - 1);
             let j = ((uv.y * h as f32) as usize).min(h - 1);
-            let (c0, c1) = m.row_cos(j);
+            let (c0, c1) = m.texels.row_cos(j);
             let lower = d.y < 0.5 * (c0 + c1);
             counts[(2 * j + lower as usize) * 2 * w + x] += 1;
         }
@@ -504,7 +521,10 @@ mod tests {
             assert!((env.pdf(dir) / pdf - 1.0).abs() < 1e-3);
         }
         let sum: Rgb = (0..8)
-            .map(|j| (0..16).map(|i| m.texel(i, j)).sum::<Rgb>() * m.cell_solid_angle(j as usize))
+            .map(|j| {
+                (0..16).map(|i| m.texels.texel(i, j)).sum::<Rgb>()
+                    * m.texels.cell_solid_angle(j as usize)
+            })
             .sum();
         assert!((env.integral() - 2.0 * sum).length() < 1e-4 * sum.length());
     }
@@ -552,7 +572,7 @@ mod tests {
         let m = EnvMap::decode(Path::new("t.hdr"), &bytes).expect("decodes");
         assert_eq!(m.size(), (w, h));
         for (k, p) in px.iter().enumerate() {
-            let got = m.texel((k % w) as isize, (k / w) as isize);
+            let got = m.texels.texel((k % w) as isize, (k / w) as isize);
             let want = Vec3::from(p.0);
             // One exponent for the three channels: 8 bits relative to the largest.
             let tol = want.max_element() / 128.0;

@@ -67,6 +67,8 @@ pub struct Sky {
     /// Angular radius of the sun disk, degrees, in (0, 20]; [`SUN_RADIUS_DEG`] is the real sun.
     /// A larger disk keeps the real sun's irradiance (its radiance drops).
     pub sun_size_deg: f32,
+    /// Constant radiance below the horizon (the model itself has no ground: black).
+    pub ground: [f32; 3],
 }
 
 impl Default for Sky {
@@ -290,28 +292,6 @@ fn sun_xyz(theta_s: f64, t: f64, attenuate: bool) -> [f64; 3] {
     xyz
 }
 
-/// Adds radiance `ground` below the horizon of a `width` x `height` map (the model's ground
-/// is black): a row that straddles the horizon gets it in proportion to its solid angle
-/// below.
-pub fn add_ground(map: &mut [[f32; 3]], width: usize, height: usize, ground: [f32; 3]) {
-    for j in 0..height {
-        let (v0, v1) = (j as f64 / height as f64, (j + 1) as f64 / height as f64);
-        let below = if v1 <= 0.5 {
-            continue;
-        } else if v0 >= 0.5 {
-            1.0
-        } else {
-            let (c0, c1) = ((PI * v0).cos(), (PI * v1).cos());
-            -c1 / (c0 - c1)
-        };
-        for t in &mut map[j * width..(j + 1) * width] {
-            for c in 0..3 {
-                t[c] += (below as f32) * ground[c];
-            }
-        }
-    }
-}
-
 /// Strips (in cos theta) per texel row when the sun disk's coverage of a texel is integrated.
 const SUN_STRIPS: usize = 256;
 
@@ -332,6 +312,7 @@ impl Sky {
             sun_azimuth_deg,
             turbidity,
             sun_size_deg: SUN_RADIUS_DEG,
+            ground: [0.0; 3],
         }
     }
 
@@ -476,19 +457,25 @@ impl Sky {
         for j in 0..height {
             let v0 = j as f64 / height as f64;
             let v1 = (j + 1) as f64 / height as f64;
+            // The row's share of solid angle above the horizon, and where its sky is
+            // looked up: its middle, or the middle of its part above the horizon.
             let (v, frac) = if v1 <= 0.5 {
                 ((j as f64 + 0.5) / height as f64, 1.0)
             } else if v0 < 0.5 {
-                // Straddles the horizon: the part above it, at its middle.
                 let (c0, c1) = ((PI * v0).cos(), (PI * v1).cos());
                 (0.5 * (v0 + 0.5), c0 / (c0 - c1))
             } else {
-                continue;
+                (0.0, 0.0)
             };
+            let ground = self.ground.map(|g| g as f64 * (1.0 - frac));
             for i in 0..width {
                 let u = (i as f64 + 0.5) / width as f64;
-                let rgb = self.radiance64(uv_to_dir(Vec2::new(u as f32, v as f32)).as_dvec3());
-                map[j * width + i] = rgb.map(|c| c * frac);
+                let sky = if frac > 0.0 {
+                    self.radiance64(uv_to_dir(Vec2::new(u as f32, v as f32)).as_dvec3())
+                } else {
+                    [0.0; 3]
+                };
+                map[j * width + i] = [0, 1, 2].map(|c| sky[c] * frac + ground[c]);
             }
         }
         map

@@ -11,13 +11,14 @@ use crate::core::Ray;
 use crate::core::Rgb;
 use crate::geometry::{Geometry, Surface, EPS};
 use crate::media::Media;
-use crate::sampling::{Rng, Stream};
+use crate::sampling::{Discrete, Rng, Stream};
 use crate::scene::{Light, Material};
 
 /// Lights with a discrete distribution proportional to their power.
 pub struct LightSampler {
     lights: Vec<Light>,
-    cdf: Vec<f32>,
+    /// By power; None when no light emits.
+    by_power: Option<Discrete>,
     /// Sphere bounding everything a directional light must cover.
     scene_center: Vec3,
     scene_radius: f32,
@@ -27,22 +28,14 @@ impl LightSampler {
     pub fn new(lights: &[Light], scene_bounds: [Vec3; 2]) -> Self {
         let scene_center = 0.5 * (scene_bounds[0] + scene_bounds[1]);
         let scene_radius = 0.5 * (scene_bounds[1] - scene_bounds[0]).length() * 1.01 + 1e-3;
-        let weights: Vec<f32> = lights
-            .iter()
-            .map(|l| l.power(scene_radius).element_sum().max(0.0))
-            .collect();
-        let total: f32 = weights.iter().sum();
-        let mut acc = 0.0;
-        let cdf = weights
-            .iter()
-            .map(|w| {
-                acc += w / total.max(f32::MIN_POSITIVE);
-                acc
-            })
-            .collect();
+        let by_power = Discrete::new(
+            lights
+                .iter()
+                .map(|l| l.power(scene_radius).element_sum() as f64),
+        );
         LightSampler {
             lights: lights.to_vec(),
-            cdf,
+            by_power,
             scene_center,
             scene_radius,
         }
@@ -67,8 +60,7 @@ impl LightSampler {
 
     /// A light chosen by power from `u` in [0, 1), with the probability of choosing it.
     pub fn pick(&self, u: f32) -> Option<(&Light, f32)> {
-        let idx = self.cdf.iter().position(|&c| u < c)?;
-        let prob = self.cdf[idx] - if idx > 0 { self.cdf[idx - 1] } else { 0.0 };
+        let (idx, prob, _) = self.by_power.as_ref()?.sample(u);
         Some((&self.lights[idx], prob))
     }
 

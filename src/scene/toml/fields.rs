@@ -172,6 +172,10 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 sun_azimuth_deg: sun_azimuth.unwrap_or(d.sun_azimuth_deg),
                 turbidity: turbidity.unwrap_or(d.turbidity),
                 sun_size_deg: sun_size.unwrap_or(d.sun_size_deg),
+                ground: match ground {
+                    Some(g) => ck.nonneg3(&f("ground"), *g)?.into(),
+                    None => d.ground,
+                },
             };
             sky.validate()
                 .map_err(|(field, msg)| ck.err(&f(field), msg))?;
@@ -183,11 +187,7 @@ pub(super) fn light(ck: &Check, i: usize, l: &FileLight) -> Result<Light> {
                 "a map width in [8, 16384] texels",
             )? as usize;
             let height = width / 2;
-            let mut texels = sky.bake(width, height);
-            if let Some(g) = ground {
-                let g = ck.nonneg3(&f("ground"), *g)?;
-                add_ground(&mut texels, width, height, g.into());
-            }
+            let texels = sky.bake(width, height);
             let name = format!(
                 "Preetham sky, sun at {} deg elevation, {} deg azimuth, turbidity {}",
                 sky.sun_elevation_deg, sky.sun_azimuth_deg, sky.turbidity

@@ -12,7 +12,7 @@ mod schema;
 use super::assets::AssetCache;
 use super::grids::GridFile;
 use super::medium::{toml_field, MediumSpec, TransformSpec};
-use super::sky::{add_ground, Sky};
+use super::sky::Sky;
 use super::{Camera, EnvMap, Environment, Format, Imported, Light, Material, NamedMaterial, Scene};
 use crate::core::frames::{self, at_frame};
 use crate::error::{Error, Result};
