@@ -395,7 +395,27 @@ fn write_outputs(out: &Path, img: &Image, m: &OutputMeta) -> Result<()> {
 
 /// Writes the EXR with header `meta` and its PNG preview beside it.
 fn write_image(out: &Path, img: &Image, meta: &ExrMeta, exposure: f32) -> Result<()> {
-    output::write_exr(out, img, meta)?;
+    write_image_with(out, img, meta, &[], exposure)
+}
+
+/// The film's error estimate as EXR attributes `ppb/estimated_rel_l1` (per pixel) and
+/// `ppb/estimated_rel_l1_4x4`; nothing until each half-film holds 2 passes.
+fn set_error_estimate(meta: &mut ExrMeta, film: &ppb::film::Film) {
+    if let Some(e) = film.error_estimate() {
+        meta.set("ppb/estimated_rel_l1", format!("{:.6}", e.pixel));
+        meta.set("ppb/estimated_rel_l1_4x4", format!("{:.6}", e.block));
+    }
+}
+
+/// [`write_image`] with `extra` EXR channels.
+fn write_image_with(
+    out: &Path,
+    img: &Image,
+    meta: &ExrMeta,
+    extra: &[output::Channel],
+    exposure: f32,
+) -> Result<()> {
+    output::write_exr_with(out, img, meta, extra)?;
     output::write_png(&out.with_extension("png"), img, exposure)?;
     Ok(())
 }

@@ -97,6 +97,17 @@ fn rational(fps: f64) -> (i32, u32) {
 
 /// Writes an EXR with the header `meta`.
 pub fn write_exr(path: &Path, img: &Image, meta: &ExrMeta) -> Result<()> {
+    write_exr_with(path, img, meta, &[])
+}
+
+/// A float32 channel besides the image's own (`error.R`, ...), one value a pixel.
+pub type Channel<'a> = (&'a str, Vec<f32>);
+
+/// Writes an EXR with the header `meta` and `extra` channels after R, G, B (and A).
+pub fn write_exr_with(path: &Path, img: &Image, meta: &ExrMeta, extra: &[Channel]) -> Result<()> {
+    if !extra.is_empty() {
+        return write_atomic(path, |tmp| write_any_channels(tmp, path, img, meta, extra));
+    }
     write_atomic(path, |tmp| {
         let px = &img.pixels;
         let w = img.width;
@@ -138,6 +149,46 @@ pub fn write_exr(path: &Path, img: &Image, meta: &ExrMeta) -> Result<()> {
             }
         }
     })
+}
+
+/// An EXR whose channels are listed by name: the image's and `extra`.
+fn write_any_channels(
+    tmp: &Path,
+    path: &Path,
+    img: &Image,
+    meta: &ExrMeta,
+    extra: &[Channel],
+) -> Result<()> {
+    let rgb = |c: usize| img.pixels.iter().map(|p| p[c]).collect::<Vec<f32>>();
+    let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = ["R", "G", "B"]
+        .iter()
+        .enumerate()
+        .map(|(c, n)| AnyChannel::new(*n, FlatSamples::F32(rgb(c))))
+        .collect();
+    if let Some(a) = &img.alpha {
+        list.push(AnyChannel::new("A", FlatSamples::F32(a.clone())));
+    }
+    for (name, v) in extra {
+        if v.len() != img.pixels.len() {
+            return Err(Error::Other(format!(
+                "{}: channel {name} has {} values for {} pixels",
+                path.display(),
+                v.len(),
+                img.pixels.len()
+            )));
+        }
+        list.push(AnyChannel::new(*name, FlatSamples::F32(v.clone())));
+    }
+    let layer = Layer::new(
+        (img.width, img.height),
+        meta.layer_attributes(),
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(list),
+    );
+    exr::prelude::Image::from_layer(layer)
+        .write()
+        .to_file(tmp)
+        .map_err(|e| Error::format(path, format!("writing EXR: {e}")))
 }
 
 /// The text attributes of an EXR's first layer (name, value), sorted by name.

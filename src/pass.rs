@@ -145,6 +145,10 @@ impl Tracer {
             photon_r1: self.photon_r1,
             smooth_photon_r1: self.smooth_photon_r1,
             light_paths: self.settings.light_paths,
+            group: match self.strat_store() {
+                Some(_) => self.settings.tr_block as u32,
+                None => 1,
+            },
         }
     }
 
@@ -209,6 +213,7 @@ impl Tracer {
         counters.add(&camera.counters);
         TracedPass {
             index: p.index,
+            odd: p.odd,
             camera,
             beams: light.beams,
             beam_map,

@@ -19,6 +19,10 @@ pub struct Plan {
     pub smooth_photon_r1: f32,
     /// Light paths per pass.
     pub light_paths: usize,
+    /// Passes in a group that share samples (a stratified transmittance block shares its
+    /// jitter and free paths), 1 when passes are independent. Groups, not passes, are what
+    /// the film's half-films interleave, so the halves stay independent.
+    pub group: u32,
 }
 
 /// One pass.
@@ -32,6 +36,9 @@ pub struct PassPlan {
     pub smooth_photon_radius: f32,
     /// Light paths traced (each an unbiased estimate whatever the count).
     pub light_paths: usize,
+    /// Whether the pass is in an odd-numbered group of [`Plan::group`] passes: the
+    /// film's second half-film.
+    pub odd: bool,
 }
 
 impl Plan {
@@ -53,6 +60,7 @@ impl Plan {
                 self.photon_alpha,
             ),
             light_paths: light_paths.max(1),
+            odd: ((index.max(1) - 1) / self.group.max(1)).is_multiple_of(2),
         }
     }
 }
@@ -115,6 +123,7 @@ mod tests {
             photon_r1: 0.2,
             smooth_photon_r1: 0.6,
             light_paths: 1000,
+            group: 1,
         };
         let p = plan.pass(2);
         assert_eq!(p, plan.pass(2));
@@ -123,5 +132,12 @@ mod tests {
         // Photons follow their own alpha: (1 + 2/3) / 2 for pass 2.
         assert!((p.photon_radius - 0.2 * (5.0f32 / 6.0).sqrt()).abs() < 1e-6);
         assert_eq!(plan.pass_with_paths(2, 0).light_paths, 1);
+        // Half-films: odd passes, or odd-numbered groups of passes.
+        assert_eq!([1, 2, 3].map(|i| plan.pass(i).odd), [true, false, true]);
+        let blocks = Plan { group: 4, ..plan };
+        assert_eq!(
+            [1, 4, 5, 8, 9].map(|i| blocks.pass(i).odd),
+            [true, true, false, false, true]
+        );
     }
 }

@@ -11,6 +11,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::Timings;
 use crate::estimate::{cpu::CpuBeams, Estimator};
+use crate::film::error::ErrorEstimate;
 use crate::film::Film;
 use crate::gpu::beams::{CameraTr, GpuBeams, GpuOptions, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
@@ -156,7 +157,7 @@ impl Session {
         let beam_map = self.beams.get().needs_beam_map();
         let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
         let t1 = Instant::now();
-        self.film.add_pass(&traced.camera.image);
+        self.film.add_pass(p.odd, &traced.camera.image);
         self.film.add_alpha(&traced.camera.alpha);
         let evals =
             self.beams
@@ -241,6 +242,12 @@ impl Session {
         self.restart()?;
         self.film = film;
         Ok(())
+    }
+
+    /// How far the image is from converged (its noise, from the half-films); None until
+    /// each half holds enough passes.
+    pub fn error_estimate(&mut self) -> Result<Option<ErrorEstimate>> {
+        Ok(self.film()?.error_estimate())
     }
 
     /// Empties the film and the estimator's sums; the next pass starts a new average.

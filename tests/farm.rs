@@ -129,6 +129,16 @@ fn tasks_merge_bit_for_bit_and_resume_after_a_signal() {
         .args(["merge", "--frames", "16", "-q", "-o"])
         .arg(&out));
     assert_eq!(bits(&dir.join("parts/s.0016.exr")), want);
+    // The parts carry both half-films, so the merge estimates the same error as one render.
+    let estimate = |p: &Path| {
+        let text = ppb::output::read_exr_text(p).unwrap();
+        let e = text.into_iter().find(|(k, _)| k == "ppb/estimated_rel_l1");
+        e.expect("an error estimate in the header").1
+    };
+    assert_eq!(
+        estimate(&dir.join("parts/s.0016.exr")),
+        estimate(&dir.join("one/s.0016.exr"))
+    );
 
     // A long task interrupted after its first checkpoint, then finished by a second run.
     let long = dir.join("long/s.exr");
@@ -245,7 +255,7 @@ fn merge_refuses_gaps_overlaps_and_foreign_parts() {
         e.contains("do not belong to one render") && e.contains("settings"),
         "{e}"
     );
-    std::fs::write(&a2, b"PPBPART1 but cut").unwrap();
+    std::fs::write(&a2, b"PPBPART2 but cut").unwrap();
     assert!(merge(&[&a2, &b]).contains("not a valid ppb part file"));
     // The right two merge.
     ok(ppb()

@@ -203,6 +203,17 @@ fn auto_primary_picks_by_measurement() {
         );
         assert!(m.rel_l1 < 1e-5, "{when}: rel_l1 {}", m.rel_l1);
     }
+    // The GPU keeps odd and even passes' beam sums apart, as the CPU's film does: the error
+    // estimates (the halves' difference, a few % of the image) agree within the rounding.
+    let (ge, ce) = (gpu.error_estimate(), cpu.error_estimate());
+    let (ge, ce) = (
+        ge.expect("gpu").expect("6 passes"),
+        ce.expect("cpu").expect("6 passes"),
+    );
+    eprintln!("error estimate after 6 passes: gpu {ge:?}, cpu {ce:?}");
+    for (g, c) in [(ge.pixel, ce.pixel), (ge.block, ce.block)] {
+        assert!(c > 0.0 && (g / c - 1.0).abs() < 1e-2, "gpu {g} cpu {c}");
+    }
 }
 
 /// Long BVH walks: fog-box's pure method at 128x128 with 100k light paths sends hundreds of
@@ -486,6 +497,7 @@ fn one_pixel_on_gpu(
 ) -> [f32; 4] {
     let pass = TracedPass {
         index: 1,
+        odd: true,
         camera: CameraPass {
             image: vec![Vec3::ZERO],
             alpha: Vec::new(),

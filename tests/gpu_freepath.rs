@@ -419,6 +419,7 @@ fn beam_estimate_tracks_camera_transmittance() {
         for index in 1..=4 {
             let pass = TracedPass {
                 index,
+                odd: index % 2 == 1,
                 camera: CameraPass {
                     alpha: Vec::new(),
                     image: vec![Vec3::ZERO; pixels],

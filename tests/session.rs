@@ -49,7 +49,7 @@ impl Estimator for Recorder {
             .push((t.index, rgb(&t.camera.image), rgb(&beams)));
         Ok(evals)
     }
-    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>> {
+    fn held(&mut self) -> Result<Option<ppb::film::Held>> {
         Ok(None)
     }
     fn clear(&mut self) -> Result<()> {
@@ -100,8 +100,8 @@ fn a_pass_alone_equals_the_same_pass_inside_a_longer_render() {
 }
 
 /// Runs `ppb watch --no-ramp --passes 4` on `device` until it says the passes are done;
-/// returns the written image.
-fn watch_image(dir: &Path, scene: &Path, device: &str) -> ppb::output::Image {
+/// returns the written image and the error estimate in its header.
+fn watch_image(dir: &Path, scene: &Path, device: &str) -> (ppb::output::Image, f64) {
     let out = dir.join(format!("{device}.exr"));
     let mut child = Command::new(env!("CARGO_BIN_EXE_ppb"))
         .arg("watch")
@@ -154,7 +154,16 @@ fn watch_image(dir: &Path, scene: &Path, device: &str) -> ppb::output::Image {
         "on the CPU"
     };
     assert!(log.contains(want), "{log}");
-    ppb::output::read_exr(&out).expect("the watch output")
+    let header = ppb::output::read_exr_text(&out).expect("the watch output's header");
+    let estimate = header
+        .iter()
+        .find(|(k, _)| k == "ppb/estimated_rel_l1")
+        .map(|(_, v)| v.parse().expect("a number"))
+        .expect("an error estimate after 4 passes");
+    (
+        ppb::output::read_exr(&out).expect("the watch output"),
+        estimate,
+    )
 }
 
 /// `ppb watch --device gpu` (lavapipe on CI) gives `--device cpu`'s image for the same
@@ -172,8 +181,13 @@ fn watch_on_the_gpu_matches_watch_on_the_cpu() {
     let scene = dir.join("scene.toml");
     let render = "width = 32\nheight = 24\npasses = 100\nlight_paths = 4000";
     std::fs::write(&scene, floor_scene(render, 0.5, fog)).unwrap();
-    let cpu = watch_image(&dir, &scene, "cpu");
-    let gpu = watch_image(&dir, &scene, "gpu");
+    let (cpu, cpu_error) = watch_image(&dir, &scene, "cpu");
+    let (gpu, gpu_error) = watch_image(&dir, &scene, "gpu");
+    // The GPU's beam sums keep their half-films apart too: the same noise estimate.
+    assert!(
+        cpu_error > 0.0 && (gpu_error / cpu_error - 1.0).abs() < 1e-2,
+        "error estimate GPU {gpu_error} vs CPU {cpu_error}"
+    );
     let (mut diff, mut sum) = (0.0f64, 0.0f64);
     for (a, b) in gpu.pixels.iter().zip(&cpu.pixels) {
         for c in 0..3 {

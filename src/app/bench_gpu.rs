@@ -10,7 +10,7 @@ use ppb::compare::DeviceDiff;
 use ppb::error::Result as PpbResult;
 use ppb::estimate::Estimator;
 use ppb::estimate::{TracedPass, View};
-use ppb::film::Film;
+use ppb::film::{Film, Held};
 use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
 use ppb::gpu::DeviceKind;
 use ppb::pass::Tracer;
@@ -69,7 +69,7 @@ impl Estimator for Race {
         let start = Instant::now();
         let (cpu, evals) = ppb::estimate::cpu::beam_image(view, t);
         let cpu_seconds = start.elapsed().as_secs_f64();
-        film.add(&cpu);
+        film.add(t.odd, &cpu);
         for (k, gpu) in self.gpus.iter_mut().enumerate() {
             if self.out.lock().unwrap_or_else(|e| e.into_inner())[k]
                 .failed
@@ -100,7 +100,7 @@ impl Estimator for Race {
         Ok(evals)
     }
 
-    fn held(&mut self) -> PpbResult<Option<Vec<[f32; 4]>>> {
+    fn held(&mut self) -> PpbResult<Option<Held>> {
         Ok(None)
     }
 

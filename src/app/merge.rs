@@ -115,6 +115,7 @@ fn merge_frame(args: &MergeArgs, parts: Vec<Part>, frame: Option<u32>) -> Result
     meta.set("ppb/render_seconds", format!("{:.3}", header.seconds));
     meta.set("ppb/scene_hash", header.scene_hash.clone());
     meta.set("ppb/merged_parts", n.to_string());
+    super::set_error_estimate(&mut meta, &film);
     super::write_image(&out, &img, &meta, header.exposure).map_err(super::failed)?;
     if !args.quiet {
         eprintln!("{n} parts, passes {} -> {}", header.range, out.display());

@@ -16,28 +16,49 @@ pub enum ProgressKind {
     None,
 }
 
+/// What a command's progress counts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Goal {
+    /// Passes, in all.
+    Passes(u64),
+    /// Frames, each ending at a time budget or an error target: the caller says how far
+    /// into its frame a pass is.
+    Frames(u32),
+}
+
+/// Steps a frame counts under [`Goal::Frames`].
+const FRAME_STEPS: u64 = 1000;
+
 /// Progress over all the passes of a command (every frame of it).
 pub struct Progress {
     kind: ProgressKind,
     bar: ProgressBar,
-    /// Passes in all (or, under a time budget, frames x budget seconds).
+    /// Passes in all, or frames x [`FRAME_STEPS`].
     total: u64,
     done: AtomicU64,
-    budget: Option<(Duration, u32)>,
+    goal: Goal,
     start: Instant,
     /// Last whole percent printed (ALF lines only on change).
     last_percent: AtomicI64,
 }
 
+/// What a pass reports besides its index.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PassNote {
+    /// How far into its frame the render is, under [`Goal::Frames`].
+    pub in_frame: f64,
+    /// The estimated error and its target, when the render has one.
+    pub error: Option<(f64, f64)>,
+}
+
 impl Progress {
-    /// `budget`: seconds per frame and the frame count, when the render is timed.
-    pub fn new(kind: ProgressKind, budget: Option<(Duration, u32)>, passes: u64) -> Self {
-        let total = match budget {
-            Some((b, frames)) => b.as_secs().max(1) * frames as u64,
-            None => passes.max(1),
+    pub fn new(kind: ProgressKind, goal: Goal) -> Self {
+        let total = match goal {
+            Goal::Frames(frames) => FRAME_STEPS * u64::from(frames.max(1)),
+            Goal::Passes(p) => p.max(1),
         };
         let bar = match kind {
-            ProgressKind::Bar => bar(total, budget.is_some()),
+            ProgressKind::Bar => bar(total, goal),
             _ => ProgressBar::hidden(),
         };
         Progress {
@@ -45,7 +66,7 @@ impl Progress {
             bar,
             total,
             done: AtomicU64::new(0),
-            budget,
+            goal,
             start: Instant::now(),
             last_percent: AtomicI64::new(-1),
         }
@@ -53,20 +74,20 @@ impl Progress {
 
     /// Counts passes done earlier (a resumed or skipped task).
     pub fn skip(&self, passes: u64) {
-        if self.budget.is_none() {
+        if let Goal::Passes(_) = self.goal {
             self.done.fetch_add(passes, Ordering::Relaxed);
             self.bar.inc(passes);
         }
     }
 
-    /// After pass `index` of `frame`, `in_frame` into the frame's render.
-    pub fn pass(&self, frame: Option<u32>, index: u32, in_frame: Duration) {
-        let done = match self.budget {
-            Some((b, _)) => {
+    /// After pass `index` of `frame`.
+    pub fn pass(&self, frame: Option<u32>, index: u32, note: PassNote) {
+        let done = match self.goal {
+            Goal::Frames(_) => {
                 let frames_before = self.done.load(Ordering::Relaxed);
-                frames_before + in_frame.as_secs().min(b.as_secs())
+                frames_before + (note.in_frame.clamp(0.0, 1.0) * FRAME_STEPS as f64) as u64
             }
-            None => self.done.fetch_add(1, Ordering::Relaxed) + 1,
+            Goal::Passes(_) => self.done.fetch_add(1, Ordering::Relaxed) + 1,
         };
         let fraction = (done as f64 / self.total as f64).min(1.0);
         let elapsed = self.start.elapsed().as_secs_f64();
@@ -76,9 +97,12 @@ impl Progress {
         let _ = match self.kind {
             ProgressKind::Bar => {
                 self.bar.set_position(done);
+                let error = note.error.map_or_else(String::new, |(e, t)| {
+                    format!("  error ~{:.2} % (target {:.2} %)", e * 100.0, t * 100.0)
+                });
                 self.bar.set_message(match frame {
-                    Some(f) => format!("frame {f} pass {index}"),
-                    None => format!("pass {index}"),
+                    Some(f) => format!("frame {f} pass {index}{error}"),
+                    None => format!("pass {index}{error}"),
                 });
                 Ok(())
             }
@@ -100,6 +124,7 @@ impl Progress {
                     "fraction": fraction,
                     "elapsed_s": elapsed,
                     "eta_s": eta,
+                    "estimated_rel_l1": note.error.map(|(e, _)| e),
                 });
                 writeln!(out, "{line}")
             }
@@ -108,10 +133,10 @@ impl Progress {
         .and_then(|_| out.flush());
     }
 
-    /// A timed frame ended: the next one starts a budget further.
+    /// A frame ended: under [`Goal::Frames`] the next one starts a frame further.
     pub fn frame_done(&self) {
-        if let Some((b, _)) = self.budget {
-            self.done.fetch_add(b.as_secs().max(1), Ordering::Relaxed);
+        if let Goal::Frames(_) = self.goal {
+            self.done.fetch_add(FRAME_STEPS, Ordering::Relaxed);
         }
     }
 
@@ -120,11 +145,14 @@ impl Progress {
     }
 }
 
-fn bar(len: u64, timed: bool) -> ProgressBar {
-    let template = if timed {
-        "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} s  {msg}"
-    } else {
-        "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} passes  {per_sec}  ETA {eta}  {msg}"
+fn bar(len: u64, goal: Goal) -> ProgressBar {
+    let template = match goal {
+        Goal::Frames(_) => {
+            "{spinner} [{elapsed_precise}] {bar:40} {percent:>3} %  ETA {eta}  {msg}"
+        }
+        Goal::Passes(_) => {
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} passes  {per_sec}  ETA {eta}  {msg}"
+        }
     };
     let bar = ProgressBar::new(len);
     if let Ok(style) = ProgressStyle::with_template(template) {

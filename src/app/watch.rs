@@ -163,6 +163,8 @@ struct Status {
     scene: String,
     last_reload: String,
     last_error: Option<String>,
+    /// The image's estimated rel_l1 per pixel at the last write (None before 4 passes).
+    estimate: Option<f64>,
     line: String,
     /// When the line was last drawn: redraws are limited to 10 per second.
     drawn: Option<Instant>,
@@ -212,6 +214,7 @@ impl Worker {
             scene: args.scene.display().to_string(),
             last_reload: "none yet".into(),
             last_error: None,
+            estimate: None,
             line: String::new(),
             drawn: None,
         };
@@ -395,6 +398,7 @@ impl Worker {
             .log(&format!("reload {}: {what}", self.generation));
         self.status.last_reload = what;
         self.status.last_error = None;
+        self.status.estimate = None;
         self.current = Some(Current {
             file,
             settings,
@@ -498,6 +502,10 @@ impl Worker {
                 None => return,
             };
             if write {
+                self.status.estimate = self.current.as_mut().and_then(|c| {
+                    let e = c.session.error_estimate().ok().flatten();
+                    e.map(|e| e.pixel)
+                });
                 let first = self.written_at_pass == 0;
                 self.write_outputs(if first { "first pass" } else { "checkpoint" }, &img);
             }
@@ -558,7 +566,10 @@ impl Worker {
             return;
         };
         let exposure = cur.settings.exposure;
-        let extra = [("ppb/reload".to_string(), self.generation.to_string())];
+        let mut extra = vec![("ppb/reload".to_string(), self.generation.to_string())];
+        if let Some(e) = self.status.estimate {
+            extra.push(("ppb/estimated_rel_l1".to_string(), format!("{e:.6}")));
+        }
         let r = self.write_image(&self.out, img, exposure, &extra);
         self.last_write = Instant::now();
         if let Err(e) = r {
@@ -613,8 +624,12 @@ impl Worker {
             Some(e) => format!(" | error: {e}"),
             None => String::new(),
         };
+        let estimate = match self.status.estimate {
+            Some(e) => format!(" | noise ~{:.2} %", e * 100.0),
+            None => String::new(),
+        };
         let line = format!(
-            "{} | pass {}{budget} | {pps:.2} passes/s | reload {} {:.0} s ago: {}{err}",
+            "{} | pass {}{budget}{estimate} | {pps:.2} passes/s | reload {} {:.0} s ago: {}{err}",
             self.status.scene,
             self.passes(),
             self.generation,

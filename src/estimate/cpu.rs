@@ -9,7 +9,7 @@ use super::splat::splat;
 use super::{Estimator, TracedPass, View};
 use crate::core::Rgb;
 use crate::error::Result;
-use crate::film::Film;
+use crate::film::{Film, Held};
 use crate::media::Media;
 use crate::transport::camera::Secondary;
 use crate::transport::transmittance::camera_tr;
@@ -34,11 +34,11 @@ impl Estimator for CpuBeams {
         _traced: (Instant, Instant),
     ) -> Result<u64> {
         let (img, evals) = beam_image(view, t);
-        film.add(&img);
+        film.add(t.odd, &img);
         Ok(evals)
     }
 
-    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>> {
+    fn held(&mut self) -> Result<Option<Held>> {
         Ok(None)
     }
 

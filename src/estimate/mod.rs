@@ -12,7 +12,7 @@ pub mod splat;
 use std::time::Instant;
 
 use crate::error::Result;
-use crate::film::Film;
+use crate::film::{Film, Held};
 use crate::media::Media;
 use crate::transport::camera::{CameraPass, Pinhole};
 use crate::transport::{Beam, Counters};
@@ -45,6 +45,8 @@ impl Timings {
 pub struct TracedPass {
     /// 1-based pass number.
     pub index: u32,
+    /// Whether it adds to the film's second half-film (`PassPlan::odd`).
+    pub odd: bool,
     pub camera: CameraPass,
     pub beams: Vec<Beam>,
     /// The beam BVH (built when the camera can reach a specular surface, or on request).
@@ -78,9 +80,10 @@ pub trait Estimator: Send {
         film: &mut Film,
         traced: (Instant, Instant),
     ) -> Result<u64>;
-    /// Per-pixel beam sums (RGB, evaluations) kept outside the film, after the pass in
-    /// flight ends; None when everything is in the film already.
-    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>>;
+    /// Per-pixel beam sums (RGB, evaluations) kept outside the film, of the even and of the
+    /// odd passes, after the pass in flight ends; None when everything is in the film
+    /// already.
+    fn held(&mut self) -> Result<Option<Held>>;
     /// Forgets the sums kept aside (the session restarts).
     fn clear(&mut self) -> Result<()>;
 }

@@ -2,8 +2,10 @@
 //! must check (scene and asset hash, settings, size, seed, frame, version). Written
 //! atomically; a torn, truncated or foreign file is refused (a checksum covers all of it).
 //!
-//! Layout: `PPBPART1`, the header's length (u32 LE), the header (JSON), the sums
-//! (width x height x RGB, i128 LE), then the blake3 hash of everything before it.
+//! Layout: `PPBPART2`, the header's length (u32 LE), the header (JSON), the sums
+//! (width x height x RGB, i128 LE), the sums of the odd passes alone (the same),
+//! a transparent film's alpha sums (width x height, i128 LE), then the blake3 hash of
+//! everything before it.
 use std::path::{Path, PathBuf};
 
 use crate::core::fs::write_atomic;
@@ -13,7 +15,7 @@ use crate::output::ExrMeta;
 
 use super::tasks::PassRange;
 
-const MAGIC: &[u8; 8] = b"PPBPART1";
+const MAGIC: &[u8; 8] = b"PPBPART2";
 /// Largest header accepted (JSON; a real one is about 2 KB).
 const MAX_HEADER: usize = 1 << 20;
 
@@ -38,6 +40,8 @@ pub struct PartHeader {
     /// unless the task was interrupted).
     pub range: PassRange,
     pub done: u32,
+    /// How many of them are odd (`PassPlan::odd`): the second half-film's passes.
+    pub odd_done: u32,
     /// Render seconds spent on these passes (over every run of the task).
     pub seconds: f64,
     /// PNG exposure of the merged image.
@@ -100,16 +104,15 @@ impl Part {
     /// Writes `film` (its passes are `header.done`) atomically to `path`.
     pub fn write(path: &Path, header: &PartHeader, film: &Film) -> Result<()> {
         let json = serde_json::to_vec(header).map_err(|e| Error::format(path, e.to_string()))?;
-        let mut bytes = Vec::with_capacity(12 + json.len() + film.sums().len() * 48 + 32);
+        let mut bytes = Vec::with_capacity(12 + json.len() + film.sums().len() * 112 + 32);
         bytes.extend_from_slice(MAGIC);
         bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
         bytes.extend_from_slice(&json);
-        for px in film.sums() {
+        for px in film.sums().iter().chain(film.odd_sums()) {
             for c in px {
                 bytes.extend_from_slice(&c.to_le_bytes());
             }
         }
-        // A transparent film's alpha sums follow, 16 bytes a pixel.
         for a in film.alpha_sums() {
             bytes.extend_from_slice(&a.to_le_bytes());
         }
@@ -125,7 +128,11 @@ impl Part {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         let bad = |msg: &str| Error::format(path, format!("not a valid ppb part file: {msg}"));
         if bytes.len() < MAGIC.len() + 4 + 32 || &bytes[..8] != MAGIC {
-            return Err(bad("no PPBPART1 signature"));
+            return Err(bad(if bytes.starts_with(b"PPBPART") {
+                "written by another version of ppb's part format (PPBPART2 expected)"
+            } else {
+                "no PPBPART2 signature"
+            }));
         }
         let (body, hash) = bytes.split_at(bytes.len() - 32);
         if blake3::hash(body).as_bytes() != hash {
@@ -139,9 +146,10 @@ impl Part {
             .map_err(|e| bad(&format!("header: {e}")))?;
         let data = &body[12 + len..];
         let pixels = header.width as u64 * header.height as u64;
-        // RGB sums (48 bytes a pixel), then alpha sums (16) for a transparent film.
-        let rgb = pixels.checked_mul(48);
-        let with_alpha = pixels.checked_mul(64);
+        // RGB sums of all passes and of the odd ones (96 bytes a pixel), then alpha sums
+        // (16) for a transparent film.
+        let rgb = pixels.checked_mul(96);
+        let with_alpha = pixels.checked_mul(112);
         if rgb != Some(data.len() as u64) && with_alpha != Some(data.len() as u64) {
             return Err(bad(&format!(
                 "{} bytes of sums for {}x{} pixels",
@@ -153,17 +161,27 @@ impl Part {
         if header.done > header.range.len() {
             return Err(bad("more passes done than its range holds"));
         }
+        if header.odd_done > header.done {
+            return Err(bad("more odd passes than passes done"));
+        }
         let (data, alpha) = data.split_at(rgb.unwrap_or(0) as usize);
-        let sums = data
-            .chunks_exact(48)
-            .map(|px| {
-                [0, 1, 2].map(|c| {
-                    i128::from_le_bytes(px[c * 16..c * 16 + 16].try_into().unwrap_or_default())
+        let (all, odd) = data.split_at(data.len() / 2);
+        let sums = |d: &[u8]| -> Vec<[i128; 3]> {
+            d.chunks_exact(48)
+                .map(|px| {
+                    [0, 1, 2].map(|c| {
+                        i128::from_le_bytes(px[c * 16..c * 16 + 16].try_into().unwrap_or_default())
+                    })
                 })
-            })
-            .collect();
-        let mut film = Film::from_sums(header.width, header.height, header.done, sums)
-            .ok_or_else(|| bad("size does not match the sums"))?;
+                .collect()
+        };
+        let mut film = Film::from_sums(
+            header.width,
+            header.height,
+            (header.done, sums(all)),
+            (header.odd_done, sums(odd)),
+        )
+        .ok_or_else(|| bad("size does not match the sums"))?;
         if !alpha.is_empty() {
             let alpha = alpha
                 .chunks_exact(16)
@@ -258,6 +276,7 @@ pub fn merge(mut parts: Vec<Part>) -> Result<(PartHeader, Film)> {
             end: h0.passes,
         },
         done: h0.passes,
+        odd_done: film.odd_passes(),
         seconds: parts.iter().map(|p| p.header.seconds).sum(),
         ..h0
     };
@@ -285,6 +304,7 @@ mod tests {
                 end: range.1,
             },
             done,
+            odd_done: 0,
             seconds: 1.0,
             exposure: 0.0,
             exr: ExrMeta::default(),
@@ -294,11 +314,18 @@ mod tests {
     fn part(dir: &Path, range: (u32, u32)) -> Part {
         let mut film = Film::new(2, 1);
         for i in range.0..range.1 {
-            film.add_pass(&[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
+            film.add_pass(i % 2 == 0, &[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
         }
         let path = dir.join(format!("p{}-{}.ppbpart", range.0, range.1));
-        Part::write(&path, &header(range, range.1 - range.0), &film).unwrap();
-        Part::read(&path).unwrap()
+        let h = PartHeader {
+            odd_done: film.odd_passes(),
+            ..header(range, range.1 - range.0)
+        };
+        Part::write(&path, &h, &film).unwrap();
+        let part = Part::read(&path).unwrap();
+        // The half-film sums and their pass count come back too.
+        assert_eq!(part.film, film);
+        part
     }
 
     #[test]
@@ -342,14 +369,19 @@ mod tests {
         let film = |range: (u32, u32)| {
             let mut f = Film::new(2, 1);
             for i in range.0..range.1 {
-                f.add_pass(&[Vec3::splat(i as f32), Vec3::ONE]);
+                f.add_pass(i % 2 == 0, &[Vec3::splat(i as f32), Vec3::ONE]);
                 f.add_alpha(&[0.25 * i as f32, 1.0]);
             }
             f
         };
         let write = |range: (u32, u32)| {
             let path = dir.join(format!("a{}-{}.ppbpart", range.0, range.1));
-            Part::write(&path, &header(range, range.1 - range.0), &film(range)).unwrap();
+            let f = film(range);
+            let h = PartHeader {
+                odd_done: f.odd_passes(),
+                ..header(range, range.1 - range.0)
+            };
+            Part::write(&path, &h, &f).unwrap();
             Part::read(&path).unwrap()
         };
         let (a, b, whole) = (write((0, 1)), write((1, 4)), write((0, 4)));

@@ -43,7 +43,7 @@ use super::{compute_pipelines, Gpu};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::estimate::{TracedPass, View};
-use crate::film::Film;
+use crate::film::{Film, Held};
 use crate::majorant::Mode;
 use crate::media::Media;
 use crate::sampling::mix64;
@@ -99,7 +99,10 @@ pub struct GpuBeams {
     seed: u64,
     /// The walk budget each pass starts from (`Params::walk_budget`).
     walk_budget: u32,
-    accum: wgpu::Buffer,
+    /// Beam sums of the even and of the odd passes (the film's half-films).
+    accum: [wgpu::Buffer; 2],
+    /// Whether the pass submitted last is odd (`PassPlan::odd`): the accumulator it adds to.
+    odd: bool,
     segments: Grow,
     pixel_first: Grow,
     seg_out: Grow,
@@ -156,7 +159,8 @@ impl GpuBeams {
         });
         let chunk_stride = uniform_stride::<Chunk>(&gpu);
         let chunk_buf = uniform_chunks(dev, 2 * chunk_stride);
-        let accum = read_write(dev, "accum", pixels as u64 * 16);
+        let accum = ["even", "odd"]
+            .map(|k| read_write(dev, &format!("{k} passes' sums"), pixels as u64 * 16));
         let adapter = gpu.describe();
         Ok(GpuBeams {
             segments: Grow::new(dev, "segments"),
@@ -190,6 +194,7 @@ impl GpuBeams {
             seed: opts.seed,
             walk_budget: params.walk_budget,
             accum,
+            odd: false,
             pixels,
             in_flight: None,
             stats: GpuStats {
@@ -246,6 +251,7 @@ impl GpuBeams {
             return Ok(prev);
         }
         let (n_segs, quads) = self.upload(t, media, raster)?;
+        self.odd = t.odd;
         let seg_chunks = chunks(n_segs);
         let pixel_chunks = chunks(self.pixels);
         self.write_chunk_table(&seg_chunks, &pixel_chunks);
@@ -424,18 +430,30 @@ impl GpuBeams {
     /// The accumulated beam radiance per pixel (sum over the submitted passes), after
     /// waiting for the pass in flight.
     pub fn read(&mut self) -> Result<(Vec<[f32; 4]>, Option<GpuTiming>)> {
+        let ([even, odd], timing) = self.read_halves()?;
+        let sum = even
+            .iter()
+            .zip(&odd)
+            .map(|(a, b)| [0, 1, 2, 3].map(|c| a[c] + b[c]))
+            .collect();
+        Ok((sum, timing))
+    }
+
+    /// The accumulated sums of the even and of the odd passes, after waiting for the pass
+    /// in flight.
+    pub fn read_halves(&mut self) -> Result<(Held, Option<GpuTiming>)> {
         let timing = self.wait()?;
         let size = self.pixels as u64 * 16;
-        let enc = self
-            .gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let data: Vec<[f32; 4]> = read_back(&self.gpu, enc, &self.accum, size, "the accumulator")?;
-        if data.iter().flatten().any(|&v| v < 0.0) {
-            return Err(self.loop_cut());
+        let mut halves: Held = [Vec::new(), Vec::new()];
+        for (half, buf) in halves.iter_mut().zip(&self.accum) {
+            let enc = self.encoder();
+            *half = read_back(&self.gpu, enc, buf, size, "the accumulator")?;
+            if half.iter().flatten().any(|&v| v < 0.0) {
+                return Err(self.loop_cut());
+            }
         }
         self.check()?;
-        Ok((data, timing))
+        Ok((halves, timing))
     }
 
     /// The error for sums the adapter's loop limit made wrong.
@@ -461,7 +479,9 @@ impl GpuBeams {
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.clear_buffer(&self.accum, 0, None);
+        for buf in &self.accum {
+            enc.clear_buffer(buf, 0, None);
+        }
         self.gpu.queue.submit([enc.finish()]);
         self.check()
     }
@@ -491,7 +511,7 @@ impl GpuBeams {
             whole(&self.nodes.buf),
             whole(&self.pieces.buf),
             whole(&self.grid_buf),
-            whole(&self.accum),
+            whole(&self.accum[usize::from(self.odd)]),
             whole(&self.seg_out.buf),
             wgpu::BindingResource::TextureView(&self.primary_sums),
         ];
@@ -533,10 +553,11 @@ impl Estimator for GpuBeams {
         Ok(0)
     }
 
-    fn held(&mut self) -> Result<Option<Vec<[f32; 4]>>> {
-        let (acc, timing) = self.read()?;
+    fn held(&mut self) -> Result<Option<Held>> {
+        let (acc, timing) = self.read_halves()?;
         self.stats.record(timing, None);
-        self.stats.beam_evaluations = acc.iter().map(|a| a[3] as f64).sum::<f64>() as u64;
+        let evals = acc.iter().flatten().map(|a| a[3] as f64).sum::<f64>();
+        self.stats.beam_evaluations = evals as u64;
         Ok(Some(acc))
     }
 

@@ -5,6 +5,12 @@
 //! 2^-[`FRACTION_BITS`], and integer addition is associative. So the sums of passes
 //! 1..=8 are the same bits whether one process adds them in order or shards add 1..=4
 //! and 5..=8 and a merge adds the two sums ([`Film::merge`]): farm renders merge exactly.
+//!
+//! Beside the sums of all passes the film keeps those of the odd passes (those of
+//! odd-numbered groups where passes share samples, `plan::Plan::group`): two interleaved
+//! half-films, whose difference is the reference-free noise estimate of [`error`].
+pub mod error;
+
 use crate::core::Rgb;
 
 /// Fraction bits of the fixed-point sums: a resolution of 3.6e-15, and room for sums up
@@ -17,6 +23,9 @@ pub struct Film {
     pub width: u32,
     pub height: u32,
     sum: Vec<[i128; 3]>,
+    /// Sums of the odd passes alone.
+    odd: Vec<[i128; 3]>,
+    odd_passes: u32,
     /// Alpha sums (a transparent film), else empty.
     alpha: Vec<i128>,
     passes: u32,
@@ -38,18 +47,28 @@ impl Film {
             width,
             height,
             sum: vec![[0; 3]; (width * height) as usize],
+            odd: vec![[0; 3]; (width * height) as usize],
+            odd_passes: 0,
             alpha: Vec::new(),
             passes: 0,
         }
     }
 
-    /// A film from stored sums over `passes` passes (a part file); None when the pixel
-    /// count does not match the size.
-    pub fn from_sums(width: u32, height: u32, passes: u32, sum: Vec<[i128; 3]>) -> Option<Self> {
-        (sum.len() == (width as usize) * (height as usize)).then_some(Film {
+    /// A film from stored sums (a part file): `sum` over `passes` passes, `odd` over the
+    /// `odd_passes` odd ones; None when a pixel count does not match the size.
+    pub fn from_sums(
+        width: u32,
+        height: u32,
+        (passes, sum): (u32, Vec<[i128; 3]>),
+        (odd_passes, odd): (u32, Vec<[i128; 3]>),
+    ) -> Option<Self> {
+        let n = (width as usize) * (height as usize);
+        (sum.len() == n && odd.len() == n && odd_passes <= passes).then_some(Film {
             width,
             height,
             sum,
+            odd,
+            odd_passes,
             alpha: Vec::new(),
             passes,
         })
@@ -94,28 +113,41 @@ impl Film {
         &self.sum
     }
 
-    /// Adds `img` to the current pass's sums (one pass adds several estimates).
-    pub fn add(&mut self, img: &[Rgb]) {
-        for (s, p) in self.sum.iter_mut().zip(img) {
-            s[0] += fixed(p.x);
-            s[1] += fixed(p.y);
-            s[2] += fixed(p.z);
+    /// The fixed-point sums of the odd passes, row-major RGB.
+    pub fn odd_sums(&self) -> &[[i128; 3]] {
+        &self.odd
+    }
+
+    /// Adds `img` to the sums of the current pass, odd or not (one pass adds several
+    /// estimates).
+    pub fn add(&mut self, odd: bool, img: &[Rgb]) {
+        for ((s, o), p) in self.sum.iter_mut().zip(&mut self.odd).zip(img) {
+            let v = [fixed(p.x), fixed(p.y), fixed(p.z)];
+            for c in 0..3 {
+                s[c] += v[c];
+                if odd {
+                    o[c] += v[c];
+                }
+            }
         }
     }
 
-    /// Adds `img` and counts a pass.
-    pub fn add_pass(&mut self, img: &[Rgb]) {
-        self.add(img);
+    /// Adds `img` as the first estimate of a pass, odd or not, and counts the pass.
+    pub fn add_pass(&mut self, odd: bool, img: &[Rgb]) {
+        self.add(odd, img);
         self.passes += 1;
+        self.odd_passes += u32::from(odd);
     }
 
     /// Adds another film's sums and passes (same size); the result does not depend on
     /// the order in which films are merged.
     pub fn merge(&mut self, other: &Film) {
         debug_assert_eq!((self.width, self.height), (other.width, other.height));
-        for (s, o) in self.sum.iter_mut().zip(&other.sum) {
-            for c in 0..3 {
-                s[c] += o[c];
+        for (mine, theirs) in [(&mut self.sum, &other.sum), (&mut self.odd, &other.odd)] {
+            for (s, o) in mine.iter_mut().zip(theirs) {
+                for c in 0..3 {
+                    s[c] += o[c];
+                }
             }
         }
         if self.alpha.is_empty() {
@@ -125,10 +157,16 @@ impl Film {
             *s += o;
         }
         self.passes += other.passes;
+        self.odd_passes += other.odd_passes;
     }
 
     pub fn passes(&self) -> u32 {
         self.passes
+    }
+
+    /// Odd passes.
+    pub fn odd_passes(&self) -> u32 {
+        self.odd_passes
     }
 
     /// The current estimate: mean over passes, row-major RGB.
@@ -140,25 +178,54 @@ impl Film {
             .collect()
     }
 
-    /// The current estimate with `extra` (per-pixel sums over the same passes, e.g. the GPU's
-    /// beam accumulator) added.
-    pub fn image_plus(&self, extra: &[[f32; 4]]) -> Vec<[f32; 3]> {
+    /// The current estimate with `extra` (per-pixel sums over the same passes, the GPU's
+    /// beam accumulators) added.
+    pub fn image_plus(&self, extra: &Held) -> Vec<[f32; 3]> {
         let inv = 1.0 / self.passes.max(1) as f64;
         self.sum
             .iter()
-            .zip(extra)
-            .map(|(s, e)| [0, 1, 2].map(|c| ((float(s[c]) + e[c] as f64) * inv) as f32))
+            .zip(extra[0].iter().zip(&extra[1]))
+            .map(|(s, (e, o))| {
+                [0, 1, 2].map(|c| ((float(s[c]) + e[c] as f64 + o[c] as f64) * inv) as f32)
+            })
             .collect()
     }
 
-    /// Adds per-pixel sums kept outside the film (the GPU's) into it, once, so the film
-    /// can be stored.
-    pub fn absorb(&mut self, extra: &[[f32; 4]]) {
-        for (s, e) in self.sum.iter_mut().zip(extra) {
+    /// Adds per-pixel sums kept outside the film (the GPU's, over the same passes) into
+    /// it, once, so the film can be shown or stored.
+    pub fn absorb(&mut self, extra: &Held) {
+        let [even, odd] = extra;
+        let pixels = self.sum.iter_mut().zip(&mut self.odd);
+        for ((s, o), (e, d)) in pixels.zip(even.iter().zip(odd)) {
             for c in 0..3 {
-                s[c] += fixed(e[c]);
+                let (e, d) = (fixed(e[c]), fixed(d[c]));
+                s[c] += e + d;
+                o[c] += d;
             }
         }
+    }
+}
+
+/// Per-pixel sums kept outside the film (RGB and a count), of the even and of the odd
+/// passes.
+pub type Held = [Vec<[f32; 4]>; 2];
+
+impl Film {
+    /// The mean over the odd or the even passes, and how many they are.
+    fn half(&self, odd: bool) -> (u32, Vec<[f64; 3]>) {
+        let n = if odd {
+            self.odd_passes
+        } else {
+            self.passes - self.odd_passes
+        };
+        let inv = 1.0 / n.max(1) as f64;
+        let mean = self
+            .sum
+            .iter()
+            .zip(&self.odd)
+            .map(|(s, o)| [0, 1, 2].map(|c| float(if odd { o[c] } else { s[c] - o[c] }) * inv))
+            .collect();
+        (n, mean)
     }
 }
 
@@ -180,13 +247,13 @@ mod tests {
         };
         let mut one = Film::new(7, 1);
         for i in 1..=12 {
-            one.add_pass(&pass(i));
+            one.add_pass(i % 2 == 1, &pass(i));
         }
         let mut shards: Vec<Film> = [(1, 5), (5, 6), (6, 13)]
             .iter()
             .map(|&(a, b)| {
                 let mut f = Film::new(7, 1);
-                (a..b).for_each(|i| f.add_pass(&pass(i)));
+                (a..b).for_each(|i| f.add_pass(i % 2 == 1, &pass(i)));
                 f
             })
             .collect();
@@ -195,6 +262,7 @@ mod tests {
             merged.merge(s);
         }
         assert_eq!(merged, one);
+        assert_eq!((one.passes(), one.odd_passes()), (12, 6));
         assert_eq!(merged.image(), one.image());
         // The mean is within the fixed point's resolution of the f64 mean.
         let exact: f64 = (1..=12).map(|i| pass(i)[3].y as f64).sum::<f64>() / 12.0;

@@ -1,0 +1,241 @@
+//! The reference-free error estimate (`film::error`) against what it estimates, and
+//! `ppb render --target-error`.
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use ppb::compare::{block_mean, compare};
+use ppb::output::{read_exr, read_exr_text, Image};
+use ppb::pass::Tracer;
+use ppb::scene::toml::load;
+use ppb::session::Session;
+use ppb::settings::TrMode;
+
+fn data(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+/// How a test renders: scene, size (square), light paths, passes, camera transmittance.
+#[derive(Clone, Copy)]
+struct Setup {
+    scene: &'static str,
+    size: u32,
+    paths: usize,
+    passes: u32,
+    tr: TrMode,
+}
+
+/// `setup` with seed `seed`: the image and the estimate the film made of its own error.
+/// Stratified transmittance runs blocks of 4 passes (2 strata).
+fn render(setup: Setup, seed: u64) -> (Image, [f64; 2]) {
+    let Setup {
+        scene,
+        size,
+        paths,
+        passes,
+        tr,
+    } = setup;
+    let file = load(&data(scene)).expect("scene");
+    let mut s = file.settings.clone();
+    (s.width, s.height, s.light_paths, s.seed) = (size, size, paths, seed);
+    (s.tr_mode, s.tr_block, s.tr_samples) = (tr, 4, 2);
+    let mut session = Session::cpu(Tracer::new(&file.scene, s).expect("tracer"));
+    let img = session.render(passes).expect("render");
+    let e = session
+        .error_estimate()
+        .expect("film")
+        .expect("enough passes");
+    (img, [e.pixel, e.block])
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+fn var(v: &[f64]) -> f64 {
+    let m = mean(v);
+    v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64
+}
+
+/// Independent renders (other seeds) of one scene differ from each other by what each
+/// differs from the converged mean, times sqrt 2: rel_l1(a, b) / sqrt 2 over pairs is the
+/// noise the estimate claims to measure, per pixel and on 4x4 block means. Per pair, the
+/// mean of the two renders' estimates minus that measure has expectation zero; the mean of
+/// these differences must be within 4 standard errors (from their spread over the pairs:
+/// pairing cancels most of a rare bright path's sway, which moves both) of zero, and that
+/// bound must be tight enough to catch an estimate off by a quarter.
+fn estimate_matches_independent_renders(setup: Setup) {
+    let scene = setup.scene;
+    let renders: Vec<(Image, [f64; 2])> = (1..=16).map(|seed| render(setup, seed)).collect();
+    for (k, metric) in ["pixel", "4x4"].iter().enumerate() {
+        let pairs: Vec<(f64, f64)> = renders
+            .chunks(2)
+            .map(|p| {
+                let (a, b) = (&p[0].0, &p[1].0);
+                let m = if k == 0 {
+                    compare(a, b, None)
+                } else {
+                    compare(&block_mean(a, 4), &block_mean(b, 4), None)
+                };
+                let estimate = (p[0].1[k] + p[1].1[k]) / 2.0;
+                (estimate, m.expect("same size").rel_l1 / 2f64.sqrt())
+            })
+            .collect();
+        let (estimates, measured): (Vec<f64>, Vec<f64>) = pairs.iter().copied().unzip();
+        let diff: Vec<f64> = pairs.iter().map(|(e, m)| e - m).collect();
+        let (e, m) = (mean(&estimates), mean(&measured));
+        let se = (var(&diff) / diff.len() as f64).sqrt();
+        eprintln!("{scene} {metric}: estimated {e:.5}, measured {m:.5} (standard error {se:.5})");
+        assert!(
+            4.0 * se < 0.25 * m,
+            "{scene} {metric}: too few renders to tell"
+        );
+        assert!(
+            (e - m).abs() < 4.0 * se,
+            "{scene} {metric}: estimated {e}, measured {m}"
+        );
+    }
+}
+
+const SMOKE: Setup = Setup {
+    scene: "scenes/conformance/smoke-grid/scene.toml",
+    size: 96,
+    paths: 1500,
+    passes: 32,
+    tr: TrMode::Ratio,
+};
+
+#[test]
+fn noise_estimate_matches_the_spread_of_independent_renders_in_media() {
+    estimate_matches_independent_renders(SMOKE);
+}
+
+/// Stratified transmittance: a block's passes share their jitter, so the half-films take
+/// alternate blocks (alternate passes would share it and miss its noise).
+#[test]
+fn noise_estimate_matches_independent_renders_under_stratified_transmittance() {
+    estimate_matches_independent_renders(Setup {
+        tr: TrMode::Stratified,
+        ..SMOKE
+    });
+}
+
+/// A floor lit through homogeneous fog: surface photons and next-event estimation beside
+/// the beams.
+#[test]
+fn noise_estimate_matches_the_spread_of_independent_renders_on_a_floor_in_fog() {
+    estimate_matches_independent_renders(Setup {
+        scene: "scenes/conformance/fog-box/scene.toml",
+        ..SMOKE
+    });
+}
+
+fn ppb() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ppb"))
+}
+
+/// The arguments that render smoke-grid small and fast to `out`.
+fn small(out: &Path) -> Vec<String> {
+    let scene = data("scenes/conformance/smoke-grid/scene.toml");
+    [
+        "render",
+        &scene.display().to_string(),
+        "-o",
+        &out.display().to_string(),
+        "--size",
+        "48x48",
+        "--light-paths",
+        "3000",
+        "--threads",
+        "2",
+        "--progress",
+        "none",
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+/// `--target-error` stops when the estimate is below the target (not before its minimum
+/// passes); the stats, the EXR header and the optional error channels carry the estimate.
+#[test]
+fn target_error_stops_at_the_target_and_reports_the_estimate() {
+    let dir = common::temp_dir("error", "target");
+    let out = dir.join("t.exr");
+    let stats = dir.join("t.json");
+    let run = ppb()
+        .args(small(&out))
+        .args(["--target-error", "0.05", "--error-layer", "--stats"])
+        .arg(&stats)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    let e = &s["estimated_rel_l1"];
+    let (pixel, passes) = (e["pixel"].as_f64().unwrap(), s["passes"].as_u64().unwrap());
+    assert!(pixel < 0.05 && pixel > 0.0, "{s}");
+    assert!(passes >= 16, "stopped after {passes} passes");
+    let header = read_exr_text(&out).unwrap();
+    let attr = |k: &str| header.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    let written: f64 = attr("ppb/estimated_rel_l1").unwrap().parse().unwrap();
+    assert!((written - pixel).abs() < 1e-6, "{written} vs {pixel}");
+    assert!(attr("ppb/estimated_rel_l1_4x4").is_some());
+    // The error channels: expected absolute error, summing to about the estimate.
+    let channels = exr::meta::MetaData::read_from_file(&out, false)
+        .unwrap()
+        .headers[0]
+        .channels
+        .list
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect::<Vec<_>>();
+    assert_eq!(channels, ["B", "G", "R", "error.B", "error.G", "error.R"]);
+    let img = read_exr(&out).unwrap();
+    assert_eq!((img.width, img.height), (48, 48));
+
+    // A target the passes cannot reach: --passes stops first, with a warning.
+    let run = ppb()
+        .args(small(&dir.join("u.exr")))
+        .args(["--target-error", "0.0001", "--passes", "8"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    assert!(
+        err.contains("--passes ran out before --target-error 0.0001"),
+        "{err}"
+    );
+}
+
+#[test]
+fn target_error_refuses_what_it_cannot_do() {
+    let dir = common::temp_dir("error", "refuse");
+    let out = dir.join("r.exr");
+    for (extra, says) in [
+        (
+            vec!["--target-error", "1.5"],
+            "expected a rel_l1 between 0 and 1",
+        ),
+        (
+            vec!["--target-error", "0"],
+            "expected a rel_l1 between 0 and 1",
+        ),
+        (
+            vec!["--target-error", "0.01", "--pass-range", "0..4"],
+            "cannot be used with a pass range or a task",
+        ),
+        (vec!["--target-on", "blocks"], "--target-error"),
+    ] {
+        let run = ppb().args(small(&out)).args(&extra).output().unwrap();
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(
+            !run.status.success() && err.contains(says),
+            "{extra:?}: {err}"
+        );
+    }
+    assert!(!out.exists());
+}
