@@ -247,7 +247,14 @@ impl Session {
     /// How far the image is from converged (its noise, from the half-films); None until
     /// each half holds enough passes.
     pub fn error_estimate(&mut self) -> Result<Option<ErrorEstimate>> {
-        Ok(self.film()?.error_estimate())
+        Ok(match self.beams.get().held()? {
+            None => self.film.error_estimate(),
+            Some(acc) => {
+                let mut film = self.film.clone();
+                film.absorb(&acc);
+                film.error_estimate()
+            }
+        })
     }
 
     /// Empties the film and the estimator's sums; the next pass starts a new average.
