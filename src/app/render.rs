@@ -45,8 +45,9 @@ pub struct RenderArgs {
     /// Stop each frame when its estimated error (rel_l1 from the converged image, see
     /// --target-on) falls below E, e.g. 0.01. The estimate is the noise of the mean of the
     /// passes, from the spread between its odd and even passes; the kernel's bias is not in
-    /// it. --passes or --time, when given, still stop the frame first (with a warning);
-    /// without them the frame runs until the target. Not with a pass range or a task.
+    /// it. A frame never stops on it before 16 passes. --passes or --time, when given,
+    /// still stop the frame first (with a warning); without them the frame runs until the
+    /// target. Not with a pass range or a task.
     #[arg(long, value_name = "E")]
     pub target_error: Option<f64>,
     /// What --target-error measures: pixel (rel_l1 over pixels) or blocks (rel_l1 of 4x4
