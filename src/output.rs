@@ -105,50 +105,7 @@ pub type Channel<'a> = (&'a str, Vec<f32>);
 
 /// Writes an EXR with the header `meta` and `extra` channels after R, G, B (and A).
 pub fn write_exr_with(path: &Path, img: &Image, meta: &ExrMeta, extra: &[Channel]) -> Result<()> {
-    if !extra.is_empty() {
-        return write_atomic(path, |tmp| write_any_channels(tmp, path, img, meta, extra));
-    }
-    write_atomic(path, |tmp| {
-        let px = &img.pixels;
-        let w = img.width;
-        let size = (img.width, img.height);
-        let bad = |e: exr::error::Error| Error::format(path, format!("writing EXR: {e}"));
-        match &img.alpha {
-            None => {
-                let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
-                    let v = px[p.y() * w + p.x()];
-                    (v[0], v[1], v[2])
-                });
-                let layer = Layer::new(
-                    size,
-                    meta.layer_attributes(),
-                    Encoding::SMALL_LOSSLESS,
-                    channels,
-                );
-                exr::prelude::Image::from_layer(layer)
-                    .write()
-                    .to_file(tmp)
-                    .map_err(bad)
-            }
-            Some(alpha) => {
-                let channels = SpecificChannels::rgba(|p: Vec2<usize>| {
-                    let i = p.y() * w + p.x();
-                    let v = px[i];
-                    (v[0], v[1], v[2], alpha[i])
-                });
-                let layer = Layer::new(
-                    size,
-                    meta.layer_attributes(),
-                    Encoding::SMALL_LOSSLESS,
-                    channels,
-                );
-                exr::prelude::Image::from_layer(layer)
-                    .write()
-                    .to_file(tmp)
-                    .map_err(bad)
-            }
-        }
-    })
+    write_atomic(path, |tmp| write_any_channels(tmp, path, img, meta, extra))
 }
 
 /// An EXR whose channels are listed by name: the image's and `extra`.
