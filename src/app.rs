@@ -43,7 +43,7 @@ use ppb::media::Media;
 use ppb::output::{self, ExrMeta, Image};
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::settings::TrMode;
-use ppb::settings::{Method, RenderSettings};
+use ppb::settings::{Bandwidth, Method, RenderSettings};
 
 /// Command-line overrides of a scene's `[render]` settings, shared by every command that
 /// renders and applied in one place ([`Overrides::apply`]).
@@ -92,6 +92,12 @@ pub struct Overrides {
     /// compositing over another background.
     #[arg(long)]
     pub transparent: bool,
+    /// The beams' kernel radius per pixel (overrides [render].bandwidth): fixed (eq. 3's
+    /// radius everywhere, the paper's) or adaptive (each pixel's between that radius and
+    /// its half, by the estimated bias and noise: narrower at edges, wider where the
+    /// radiance is smooth). Adaptive needs the beam estimate on the CPU.
+    #[arg(long, value_enum)]
+    pub bandwidth: Option<ppb::settings::Bandwidth>,
 }
 
 impl Overrides {
@@ -130,6 +136,9 @@ impl Overrides {
             s.method = m;
         }
         s.transparent |= self.transparent;
+        if let Some(b) = self.bandwidth {
+            s.bandwidth = b;
+        }
         if let Err(e) = s.validate() {
             let flag = match e.field {
                 "width" | "height" => "--size".to_string(),
@@ -292,8 +301,19 @@ fn output_path(scene: &Path, over: Option<&PathBuf>) -> Result<PathBuf> {
     Ok(out)
 }
 
-/// Opens the device for the beam estimate and says which in one line.
-pub fn open_device(kind: DeviceKind, quiet: bool) -> Result<Option<Gpu>> {
+/// Opens the device for the beam estimate and says which in one line. With `auto`, the
+/// adaptive bandwidth keeps the estimate on the CPU (the GPU's has no nested sums).
+pub fn open_device(
+    kind: DeviceKind,
+    bandwidth: Option<Bandwidth>,
+    quiet: bool,
+) -> Result<Option<Gpu>> {
+    if kind == DeviceKind::Auto && bandwidth == Some(Bandwidth::Adaptive) {
+        if !quiet {
+            eprintln!("beam estimate on the CPU (the adaptive bandwidth needs it there)");
+        }
+        return Ok(None);
+    }
     let gpu = ppb::gpu::open(kind)?;
     if !quiet {
         match &gpu {
@@ -368,6 +388,7 @@ impl OutputMeta<'_> {
             ("ppb/render_seconds", format!("{:.3}", self.seconds)),
             ("ppb/method", format!("{:?}", s.method).to_lowercase()),
             ("ppb/transparent", s.transparent.to_string()),
+            ("ppb/bandwidth", format!("{:?}", s.bandwidth).to_lowercase()),
             ("ppb/light_paths", s.light_paths.to_string()),
             ("ppb/alpha", s.alpha.to_string()),
             ("ppb/photon_alpha", s.photon_alpha.to_string()),
@@ -398,12 +419,18 @@ fn write_image(out: &Path, img: &Image, meta: &ExrMeta, exposure: f32) -> Result
     write_image_with(out, img, meta, &[], exposure)
 }
 
-/// The film's error estimate as EXR attributes `ppb/estimated_rel_l1` (per pixel) and
-/// `ppb/estimated_rel_l1_4x4`; nothing until each half-film holds 2 passes.
-fn set_error_estimate(meta: &mut ExrMeta, film: &ppb::film::Film) {
-    if let Some(e) = film.error_estimate() {
+/// The film's error estimate (of the image `bandwidth` resolves) as EXR attributes
+/// `ppb/estimated_rel_l1` (per pixel), `ppb/estimated_rel_l1_4x4`, and the bias part
+/// alone as `ppb/estimated_bias_rel_l1` and `..._4x4` where the film has nested sums;
+/// nothing until each half-film holds 2 passes.
+fn set_error_estimate(meta: &mut ExrMeta, film: &ppb::film::Film, bandwidth: Bandwidth) {
+    if let Some(e) = film.error_estimate(bandwidth) {
         meta.set("ppb/estimated_rel_l1", format!("{:.6}", e.pixel));
         meta.set("ppb/estimated_rel_l1_4x4", format!("{:.6}", e.block));
+        if let Some(b) = e.bias {
+            meta.set("ppb/estimated_bias_rel_l1", format!("{:.6}", b.pixel));
+            meta.set("ppb/estimated_bias_rel_l1_4x4", format!("{:.6}", b.block));
+        }
     }
 }
 

@@ -11,7 +11,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::Timings;
 use crate::estimate::{cpu::CpuBeams, Estimator};
-use crate::film::error::ErrorEstimate;
+use crate::film::error::{Bandwidth, ErrorEstimate};
 use crate::film::Film;
 use crate::gpu::beams::{CameraTr, GpuBeams, GpuOptions, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
@@ -96,6 +96,11 @@ impl Session {
         camera_tr: CameraTr,
     ) -> Result<Self> {
         let beams = match gpu {
+            Some(_) if tracer.settings.bandwidth == Bandwidth::Adaptive => {
+                return Err(Error::Other(
+                    "the adaptive bandwidth needs the beam estimate on the CPU: the GPU's keeps no nested half-radius sums yet (use --bandwidth fixed, or --device cpu)".into(),
+                ))
+            }
             Some(g) => {
                 let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
                 Beams::Gpu(Box::new(GpuBeams::new(
@@ -213,10 +218,11 @@ impl Session {
         self.image()
     }
 
-    /// The current image: the mean over passes (reads the GPU's sums back).
+    /// The current image: the mean over passes at the settings' bandwidth (reads the
+    /// GPU's sums back).
     pub fn image(&mut self) -> Result<Image> {
         let pixels = match self.beams.get().held()? {
-            None => self.film.image(),
+            None => self.film.image_with(self.tracer.settings.bandwidth),
             Some(acc) => self.film.image_plus(&acc),
         };
         Ok(Image {
@@ -244,15 +250,16 @@ impl Session {
         Ok(())
     }
 
-    /// How far the image is from converged (its noise, from the half-films); None until
-    /// each half holds enough passes.
+    /// How far the image is from converged (its noise from the half-films, its bias from
+    /// the nested sums); None until each half holds enough passes.
     pub fn error_estimate(&mut self) -> Result<Option<ErrorEstimate>> {
+        let bandwidth = self.tracer.settings.bandwidth;
         Ok(match self.beams.get().held()? {
-            None => self.film.error_estimate(),
+            None => self.film.error_estimate(bandwidth),
             Some(acc) => {
                 let mut film = self.film.clone();
                 film.absorb(&acc);
-                film.error_estimate()
+                film.error_estimate(bandwidth)
             }
         })
     }

@@ -43,7 +43,12 @@ pub struct RenderSettings {
     /// see nothing of the environment, and the image gets an alpha channel, 1 - the
     /// transmittance of each camera ray that leaves (1 where it hits a surface).
     pub transparent: bool,
+    /// The beams' kernel radius per pixel: eq. 3's everywhere, or chosen per pixel
+    /// between it and its half (`film::error`).
+    pub bandwidth: Bandwidth,
 }
+
+pub use crate::film::error::Bandwidth;
 
 /// How light reaches the camera.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -78,6 +83,7 @@ impl Default for RenderSettings {
             method: Method::Hybrid,
             nee_samples: DEFAULT_NEE_SAMPLES,
             transparent: false,
+            bandwidth: Bandwidth::Fixed,
         }
     }
 }

@@ -18,7 +18,7 @@ use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
-use ppb::settings::{Method, Radius};
+use ppb::settings::{Bandwidth, Method, Radius};
 
 const BLOCK: usize = 4;
 
@@ -57,6 +57,7 @@ struct Case<'a> {
     paths: usize,
     method: Method,
     device: Device,
+    bandwidth: Bandwidth,
 }
 
 impl Case<'_> {
@@ -71,7 +72,8 @@ impl Case<'_> {
             Device::Gpu(tr) => tr,
             Device::Cpu => CameraTr::Steps,
         };
-        let r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
+        let mut r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
+        r.settings.bandwidth = self.bandwidth;
         let mut session = Session::open(r, gpu, PrimaryPath::Auto, camera_tr).expect("estimator");
         Some(session.render(self.passes).expect("render"))
     }
@@ -165,6 +167,7 @@ fn check_methods(
             paths: 20_000,
             method,
             device: Device::Cpu,
+            bandwidth: Bandwidth::Fixed,
         };
         let o = check_on(&case, reference, mask).expect("CPU render");
         o.assert_within(&format!("{scene} ({method:?})"), ref_noise, mean_tol);
@@ -316,6 +319,25 @@ fn cloud_hg_matches_reference() {
     );
 }
 
+/// The adaptive bandwidth (each pixel's radius between eq. 3's and its half, chosen from
+/// the film's own estimates) converges to the references within the same bounds.
+#[test]
+fn adaptive_bandwidth_matches_references() {
+    for (scene, passes, ref_noise) in [("fog-box", 192, 0.0011), ("cloud-hg", 96, 0.001)] {
+        let case = Case {
+            scene: &format!("scenes/conformance/{scene}/scene.toml"),
+            passes,
+            paths: 20_000,
+            method: Method::Hybrid,
+            device: Device::Cpu,
+            bandwidth: Bandwidth::Adaptive,
+        };
+        let reference = format!("tests/data/conformance/{scene}/reference.exr");
+        let o = check_on(&case, &reference, None).expect("CPU render");
+        o.assert_within(&format!("{scene} (adaptive)"), ref_noise, 0.01);
+    }
+}
+
 /// cloud-hg's cloud and floor under a lat-long sky map with a sun (this repository's
 /// reference, `tests/data/conformance/cloud-sky/`): the map's importance sampling, its
 /// MIS with the phase function and the cosine, and its beams in the pure method.
@@ -385,6 +407,7 @@ fn conformance_on_gpu() {
             paths: 20_000,
             method: Method::Hybrid,
             device: Device::Gpu(camera_tr),
+            bandwidth: Bandwidth::Fixed,
         };
         let Some(o) = check_on(&case, &reference, mask.as_deref()) else {
             return;

@@ -6,11 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use ppb::compare::{block_mean, compare};
+use ppb::film::Film;
 use ppb::output::{read_exr, read_exr_text, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
-use ppb::settings::TrMode;
+use ppb::settings::{Bandwidth, Radius, TrMode};
 
 fn data(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -46,7 +47,7 @@ fn render(setup: Setup, seed: u64) -> (Image, [f64; 2]) {
         .error_estimate()
         .expect("film")
         .expect("enough passes");
-    (img, [e.pixel, e.block])
+    (img, [e.noise.pixel, e.noise.block])
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -129,6 +130,87 @@ fn noise_estimate_matches_the_spread_of_independent_renders_on_a_floor_in_fog() 
         scene: "scenes/conformance/fog-box/scene.toml",
         ..SMOKE
     });
+}
+
+/// fog-box at its full size with the beam R1 at 3 times the auto radius, so the kernel's
+/// blur at the box's faces dominates its error: seed `seed`'s film after `passes`.
+fn wide_fog_box(seed: u64, passes: u32) -> Film {
+    let file = load(&data("scenes/conformance/fog-box/scene.toml")).expect("scene");
+    let auto = Tracer::new(&file.scene, file.settings.clone()).expect("tracer");
+    let mut s = file.settings.clone();
+    (s.seed, s.beam_radius) = (seed, Radius::Fixed(3.0 * auto.beam_r1));
+    let mut session = Session::cpu(Tracer::new(&file.scene, s).expect("tracer"));
+    session.render(passes).expect("render");
+    session.film().expect("film")
+}
+
+/// 16x16 block means of a film-sized RGB map.
+fn blocks16(film: &Film, px: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+    let img = Image {
+        width: film.width as usize,
+        height: film.height as usize,
+        pixels: px,
+        alpha: None,
+    };
+    block_mean(&img, 16).pixels
+}
+
+/// The bias estimate against the converged render (the Mitsuba reference) on a medium's
+/// faces, and the adaptive bandwidth that uses it. Along a direction p in the space of
+/// 16x16 block maps, the bias estimate b (-K D) of seed 1 and its measured error x - ref
+/// both estimate the true bias's component; p is seed 2's bias estimate, independent of
+/// seed 1's noise. Their ratio must lie in the estimate's model range, 0.77 (a step)
+/// to 1.16 (smooth radiance; `film::error`), widened by 4 standard errors of the
+/// measured component: sum p^2 var(x) over the blocks, var(x) from the two seeds'
+/// difference, (x1 - x2)^2 / 2 (the reference's own noise is 6 times smaller on these
+/// blocks). The adaptive image, the same
+/// passes resolved per pixel, must have less error than the fixed one, per pixel and on
+/// 4x4 blocks.
+#[test]
+fn bias_estimate_has_the_measured_sign_and_size_at_a_medium_face() {
+    let reference = read_exr(&data("tests/data/conformance/fog-box/reference.exr")).unwrap();
+    let (one, two) = (wide_fog_box(1, 150), wide_fog_box(2, 150));
+    let as_f32 = |m: Vec<[f64; 3]>| m.iter().map(|p| p.map(|c| c as f32)).collect();
+    let p = blocks16(&two, as_f32(two.bias_map().unwrap()));
+    let b = blocks16(&one, as_f32(one.bias_map().unwrap()));
+    let x = blocks16(&one, one.image());
+    let x2 = blocks16(&two, two.image());
+    let r = block_mean(&reference, 16).pixels;
+    let (mut pp, mut pb, mut pt, mut var_pt) = (0.0, 0.0, 0.0, 0.0);
+    for i in 0..p.len() {
+        for c in 0..3 {
+            let w = f64::from(p[i][c]);
+            pp += w * w;
+            pb += w * f64::from(b[i][c]);
+            pt += w * f64::from(x[i][c] - r[i][c]);
+            var_pt += w * w * f64::from(x[i][c] - x2[i][c]).powi(2) / 2.0;
+        }
+    }
+    let se = var_pt.sqrt();
+    let (est, measured) = (pb / pp, pt / pp);
+    let tol = 4.0 * se / pp;
+    eprintln!("fog-box faces: bias along p {est:.5}, measured {measured:.5} +- {tol:.5}");
+    assert!(est > 0.0 && measured > 0.0, "the estimate's sign");
+    assert!(tol < 0.25 * measured, "too noisy to tell: {tol}");
+    assert!(
+        est > 0.77 * (measured - tol) && est < 1.16 * (measured + tol),
+        "estimated {est}, measured {measured} +- {tol}"
+    );
+    let image = |px: Vec<[f32; 3]>| Image {
+        width: one.width as usize,
+        height: one.height as usize,
+        pixels: px,
+        alpha: None,
+    };
+    let err = |im: &Image| {
+        let pixel = compare(im, &reference, None).unwrap().rel_l1;
+        let blocks = compare(&block_mean(im, 4), &block_mean(&reference, 4), None);
+        [pixel, blocks.unwrap().rel_l1]
+    };
+    let fixed = err(&image(one.image()));
+    let adaptive = err(&image(one.image_with(Bandwidth::Adaptive)));
+    eprintln!("fog-box: fixed {fixed:?}, adaptive {adaptive:?}");
+    assert!(adaptive[0] < fixed[0] && adaptive[1] < fixed[1]);
 }
 
 fn ppb() -> Command {
@@ -238,4 +320,51 @@ fn target_error_refuses_what_it_cannot_do() {
         );
     }
     assert!(!out.exists());
+}
+
+/// `--bandwidth adaptive` renders on the CPU with the bias in the stats and the EXR
+/// header; asked for on a GPU it is refused with the reason.
+#[test]
+fn adaptive_bandwidth_from_the_command_line() {
+    let dir = common::temp_dir("error", "adaptive");
+    let (out, stats) = (dir.join("a.exr"), dir.join("a.json"));
+    let run = ppb()
+        .args(small(&out))
+        .args(["--passes", "8", "--bandwidth", "adaptive", "--stats"])
+        .arg(&stats)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    let e = &s["estimated_rel_l1"];
+    let (total, noise) = (
+        e["pixel"].as_f64().unwrap(),
+        e["noise"]["pixel"].as_f64().unwrap(),
+    );
+    let bias = e["bias"]["pixel"].as_f64().unwrap();
+    assert!(total >= noise && total <= noise + bias, "{s}");
+    let header = read_exr_text(&out).unwrap();
+    let attr = |k: &str| header.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    assert_eq!(attr("ppb/bandwidth").as_deref(), Some("adaptive"));
+    assert!(attr("ppb/estimated_bias_rel_l1").is_some());
+    let gpu = ppb()
+        .args(small(&dir.join("g.exr")))
+        .args([
+            "--passes",
+            "4",
+            "--bandwidth",
+            "adaptive",
+            "--device",
+            "gpu",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&gpu.stderr);
+    assert!(!gpu.status.success(), "{err}");
+    assert!(
+        err.contains("needs the beam estimate on the CPU") || err.contains("no GPU"),
+        "{err}"
+    );
+    assert!(!dir.join("g.exr").exists());
 }

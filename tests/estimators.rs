@@ -153,16 +153,18 @@ fn splat_finds_every_pair_the_gather_finds() {
             let (mut diff, mut total) = (0.0f64, 0.0f64);
             for (p, a) in t.camera.primaries.iter().zip(&splat) {
                 let ray = Ray::new(r.camera().origin(), p.dir);
-                let b = map.radiance(
+                let b = map.nested_radiance(
                     &ray,
-                    0.0,
-                    p.t_surf,
+                    (0.0, p.t_surf),
                     |x, cos| media.in_scatter(x, cos),
                     |t| camera_tr(media, &ray, &p.tr, t),
                     &mut evals,
                 );
-                diff += (*a - b).abs().element_sum() as f64;
-                total += b.abs().element_sum() as f64;
+                // The image and its nested half-radius difference alike.
+                for (a, b) in [(a.l, b.l), (a.d, b.d)] {
+                    diff += (a - b).abs().element_sum() as f64;
+                    total += b.abs().element_sum() as f64;
+                }
             }
             assert!(evals > 10_000, "{scene} pass {i}: only {evals} evaluations");
             assert_eq!(splat_evals, evals, "{scene} pass {i}: evaluations");

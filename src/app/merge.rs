@@ -106,7 +106,7 @@ fn merge_frame(args: &MergeArgs, parts: Vec<Part>, frame: Option<u32>) -> Result
     let img = Image {
         width: film.width as usize,
         height: film.height as usize,
-        pixels: film.image(),
+        pixels: film.image_with(header.bandwidth),
         alpha: film.alpha(),
     };
     let mut meta = header.exr.clone();
@@ -115,7 +115,7 @@ fn merge_frame(args: &MergeArgs, parts: Vec<Part>, frame: Option<u32>) -> Result
     meta.set("ppb/render_seconds", format!("{:.3}", header.seconds));
     meta.set("ppb/scene_hash", header.scene_hash.clone());
     meta.set("ppb/merged_parts", n.to_string());
-    super::set_error_estimate(&mut meta, &film);
+    super::set_error_estimate(&mut meta, &film, header.bandwidth);
     super::write_image(&out, &img, &meta, header.exposure).map_err(super::failed)?;
     if !args.quiet {
         eprintln!("{n} parts, passes {} -> {}", header.range, out.display());

@@ -344,7 +344,8 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     } else {
         args.progress
     };
-    let gpu = super::open_device(args.machine.device, args.quiet)?;
+    let bandwidth = args.over.bandwidth.unwrap_or(first.settings.bandwidth);
+    let gpu = super::open_device(args.machine.device, Some(bandwidth), args.quiet)?;
     let interrupt = Interrupt::install()?;
     let goal = if args.time.is_some() || args.target_error.is_some() {
         Goal::Frames(jobs.len() as u32)
@@ -599,8 +600,11 @@ impl Run<'_> {
         let written = target.written();
         if !self.args.quiet {
             let error = estimate.map_or_else(String::new, |e| {
+                let bias = e.bias.map_or_else(String::new, |b| {
+                    format!("; kernel bias {:.4}, {:.4}", b.pixel, b.block)
+                });
                 format!(
-                    ", estimated error {:.4} ({:.4} on 4x4 blocks)",
+                    ", estimated error {:.4} ({:.4} on 4x4 blocks{bias})",
                     e.pixel, e.block
                 )
             });
@@ -744,6 +748,7 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
             let film = s.film()?;
             h.done = film.passes();
             h.odd_done = film.odd_passes();
+            h.nested_done = film.counts().nested;
             h.seconds = seconds;
             h.exr = meta.exr(h.passes, 0.0);
             Part::write(path, h, &film)?;
@@ -752,7 +757,7 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
             let img = s.image()?;
             let mut exr = meta.exr(s.passes(), seconds);
             let film = s.film()?;
-            super::set_error_estimate(&mut exr, &film);
+            super::set_error_estimate(&mut exr, &film, meta.settings.bandwidth);
             let layer = match film.error_map().filter(|_| meta.args.error_layer) {
                 Some(map) => error_channels(&map),
                 None => Vec::new(),
@@ -792,8 +797,10 @@ fn part_header(
         range: job.passes,
         done: 0,
         odd_done: 0,
+        nested_done: 0,
         seconds: 0.0,
         exposure: settings.exposure,
+        bandwidth: settings.bandwidth,
         exr: ExrMeta::default(),
         scene: args.scene.display().to_string(),
     })

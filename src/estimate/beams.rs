@@ -8,7 +8,7 @@ use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
 
-use super::eq2::{term, BeamPiece};
+use super::eq2::{nested_term, BeamPiece, Nested};
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::transport::Beam;
@@ -148,7 +148,7 @@ impl BeamMap {
         out
     }
 
-    /// Sum of eq. 2 ([`term`], with its edge rule) over the beam pieces near the camera
+    /// Sum of eq. 2 (`eq2::term`, with its edge rule) over the beam pieces near the camera
     /// segment [t0, t1) of `ray`. `in_scatter(x, cos)` is sigma_s(x) f(cos) and `tr(t)` the
     /// camera transmittance from the ray origin to t.
     pub fn radiance(
@@ -160,16 +160,29 @@ impl BeamMap {
         tr: impl Fn(f32) -> f32,
         evaluations: &mut u64,
     ) -> Rgb {
+        self.nested_radiance(ray, (t0, t1), in_scatter, tr, evaluations)
+            .l
+    }
+
+    /// [`Self::radiance`] with its nested half-radius difference ([`Nested`]).
+    pub fn nested_radiance(
+        &self,
+        ray: &Ray,
+        (t0, t1): (f32, f32),
+        in_scatter: impl Fn(Vec3, f32) -> Rgb,
+        tr: impl Fn(f32) -> f32,
+        evaluations: &mut u64,
+    ) -> Nested {
+        let mut sum = Nested::default();
         let Some(bvh) = &self.bvh else {
-            return Rgb::ZERO;
+            return sum;
         };
-        let mut sum = Rgb::ZERO;
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
         bvh.ray_traverse_anyhit(q, |_, id| {
             let piece = &self.pieces[id];
-            if let Some(l) = term(ray, (t0, t1), piece, self.radius, &in_scatter, &tr) {
+            if let Some(l) = nested_term(ray, (t0, t1), piece, self.radius, &in_scatter, &tr) {
                 *evaluations += 1;
-                sum += l;
+                sum.add(l);
             }
         });
         sum
@@ -179,7 +192,7 @@ impl BeamMap {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimate::eq2::{crossing, kernel};
+    use crate::estimate::eq2::{crossing, kernel, term};
     use crate::sampling::{uniform_sphere, Rng};
 
     /// With sigma_s f = 1 the estimate integrates the fluence along the camera segment;

@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 use super::beams::BeamMap;
+use super::eq2::Nested;
 use super::splat::splat;
 use super::{Estimator, TracedPass, View};
 use crate::core::Rgb;
@@ -33,8 +34,10 @@ impl Estimator for CpuBeams {
         film: &mut Film,
         _traced: (Instant, Instant),
     ) -> Result<u64> {
-        let (img, evals) = beam_image(view, t);
-        film.add(t.odd, &img);
+        let (img, evals) = nested_beam_image(view, t);
+        let (l, d): (Vec<Rgb>, Vec<Rgb>) = img.iter().map(|n| (n.l, n.d)).unzip();
+        film.add(t.odd, &l);
+        film.add_nested(t.odd, &d);
         Ok(evals)
     }
 
@@ -50,15 +53,21 @@ impl Estimator for CpuBeams {
 /// Per-pixel beam radiance of a traced pass on the CPU alone (without the camera paths'
 /// photon estimate) and the number of kernel evaluations.
 pub fn beam_image(view: View, t: &TracedPass) -> (Vec<Rgb>, u64) {
+    let (img, evals) = nested_beam_image(view, t);
+    (img.iter().map(|n| n.l).collect(), evals)
+}
+
+/// [`beam_image`] with each pixel's nested half-radius difference.
+pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
     let View { camera, media } = view;
     let (pass, beams, radius) = (&t.camera, &t.beams, t.beam_radius);
     let pixels = pass.primaries.len();
     if media.is_empty() || beams.is_empty() {
-        return (vec![Rgb::ZERO; pixels], 0);
+        return (vec![Nested::default(); pixels], 0);
     }
     let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media);
     if let Some(map) = &t.beam_map {
-        let per_segment: Vec<(Rgb, u64)> = pass
+        let per_segment: Vec<(Nested, u64)> = pass
             .secondary
             .par_iter()
             .map(|s| secondary_radiance(media, map, s))
@@ -72,14 +81,14 @@ pub fn beam_image(view: View, t: &TracedPass) -> (Vec<Rgb>, u64) {
 }
 
 /// beta times the beams' in-scattered radiance along one secondary segment.
-fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Rgb, u64) {
+fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Nested, u64) {
     let ray = &s.ray;
     let mut evals = 0;
-    let mut l = Rgb::ZERO;
-    for (t0, t1) in media.spans(ray, s.t_surf) {
+    let mut l = Nested::default();
+    for span in media.spans(ray, s.t_surf) {
         let tr = |t| camera_tr(media, ray, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
-        l += map.radiance(ray, t0, t1, scatter, tr, &mut evals);
+        l += map.nested_radiance(ray, span, scatter, tr, &mut evals);
     }
     (s.beta * l, evals)
 }

@@ -86,12 +86,25 @@ pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
 /// the ray origin to t (for a segment of a camera pass: [`camera_tr`]).
 pub fn term(
     ray: &Ray,
-    (t0, t1): (f32, f32),
+    span: (f32, f32),
     piece: &BeamPiece,
     r: f32,
     in_scatter: impl Fn(Vec3, f32) -> Rgb,
     tr: impl Fn(f32) -> f32,
 ) -> Option<Rgb> {
+    nested_term(ray, span, piece, r, in_scatter, tr).map(|(l, _)| l)
+}
+
+/// [`term`] and whether the crossing also counts at radius r/2 (d^2 < r^2 / 4), where
+/// the kernel is twice as high: the same pair's term at r/2 is 2 l or nothing.
+pub fn nested_term(
+    ray: &Ray,
+    (t0, t1): (f32, f32),
+    piece: &BeamPiece,
+    r: f32,
+    in_scatter: impl Fn(Vec3, f32) -> Rgb,
+    tr: impl Fn(f32) -> f32,
+) -> Option<(Rgb, bool)> {
     let psi = Vec3::from(piece.dir);
     let c = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi)?;
     // `&`, not `&&`: one hard-to-predict branch for the pair instead of five.
@@ -101,7 +114,42 @@ pub fn term(
         return None;
     }
     let f = in_scatter(ray.at(c.t), psi.dot(-ray.d));
-    Some(f * Vec3::from(piece.power) * (kernel(c.dist2, r) * tr(c.t) / c.sin2.sqrt()))
+    let l = f * Vec3::from(piece.power) * (kernel(c.dist2, r) * tr(c.t) / c.sin2.sqrt());
+    Some((l, 4.0 * c.dist2 < r * r))
+}
+
+/// A sum of eq. 2 at the pass radius r, and beside it the same sum at r/2 minus it: the
+/// nested radius whose difference estimates the kernel's bias (`film::error`). Each pair
+/// adds l to the first, and +l (it counts at r/2 too, at 2 l) or -l (it does not) to the
+/// second.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Nested {
+    pub l: Rgb,
+    pub d: Rgb,
+}
+
+impl Nested {
+    pub fn add(&mut self, (l, inner): (Rgb, bool)) {
+        self.l += l;
+        self.d += if inner { l } else { -l };
+    }
+}
+
+impl std::ops::AddAssign for Nested {
+    fn add_assign(&mut self, o: Nested) {
+        self.l += o.l;
+        self.d += o.d;
+    }
+}
+
+impl std::ops::Mul<Nested> for Rgb {
+    type Output = Nested;
+    fn mul(self, n: Nested) -> Nested {
+        Nested {
+            l: self * n.l,
+            d: self * n.d,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -9,8 +9,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::eq2::term;
-use super::eq2::BeamPiece;
+use super::eq2::{nested_term, BeamPiece, Nested};
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::media::Media;
@@ -24,14 +23,15 @@ const BAND: usize = 4;
 const NEAR: f32 = 1e-3;
 
 /// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance
-/// and the number of kernel evaluations that contributed.
+/// (with its nested half-radius difference) and the number of kernel evaluations that
+/// contributed.
 pub fn splat(
     cam: &Pinhole,
     primaries: &[Primary],
     beams: &[Beam],
     radius: f32,
     media: &Media,
-) -> (Vec<Rgb>, u64) {
+) -> (Vec<Nested>, u64) {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let bands = h.div_ceil(BAND);
     let reach = reach_per_radius(cam);
@@ -50,13 +50,13 @@ pub fn splat(
         }
     }
     let origin = cam.origin();
-    let results: Vec<(Vec<Rgb>, u64)> = per_band
+    let results: Vec<(Vec<Nested>, u64)> = per_band
         .par_iter()
         .enumerate()
         .map(|(band, list)| {
             let row0 = band * BAND;
             let rows = BAND.min(h - row0);
-            let mut img = vec![Rgb::ZERO; rows * w];
+            let mut img = vec![Nested::default(); rows * w];
             let mut evals = 0u64;
             for &bi in list {
                 let Some(line) = &lines[bi as usize] else {
@@ -70,7 +70,7 @@ pub fn splat(
                     for x in x0..=x1 {
                         let p = &primaries[y * w + x];
                         if let Some(l) = contribution(origin, p, &piece, radius, media) {
-                            img[(y - row0) * w + x] += l;
+                            img[(y - row0) * w + x].add(l);
                             evals += 1;
                         }
                     }
@@ -89,11 +89,17 @@ pub fn splat(
 }
 
 /// Eq. 2 for one beam and one primary segment [0, t_surf), or None when the pair does not
-/// count (the rule of [`term`]).
-fn contribution(o: Vec3, p: &Primary, beam: &BeamPiece, r: f32, media: &Media) -> Option<Rgb> {
+/// count (the rule of [`nested_term`]).
+fn contribution(
+    o: Vec3,
+    p: &Primary,
+    beam: &BeamPiece,
+    r: f32,
+    media: &Media,
+) -> Option<(Rgb, bool)> {
     let ray = Ray::new(o, p.dir);
     let scatter = |x, cos| media.in_scatter(x, cos);
-    term(&ray, (0.0, p.t_surf), beam, r, scatter, |t| {
+    nested_term(&ray, (0.0, p.t_surf), beam, r, scatter, |t| {
         camera_tr(media, &ray, &p.tr, t)
     })
 }

@@ -2,20 +2,23 @@
 //! must check (scene and asset hash, settings, size, seed, frame, version). Written
 //! atomically; a torn, truncated or foreign file is refused (a checksum covers all of it).
 //!
-//! Layout: `PPBPART2`, the header's length (u32 LE), the header (JSON), the sums
-//! (width x height x RGB, i128 LE), the sums of the odd passes alone (the same),
-//! a transparent film's alpha sums (width x height, i128 LE), then the blake3 hash of
-//! everything before it.
+//! Layout: `PPBPART3`, the header's length (u32 LE), the header (JSON), the sums
+//! (width x height x RGB, i128 LE), the sums of the odd passes alone (the same), the
+//! nested sums of all and of the odd passes (the same twice), a transparent film's alpha
+//! sums (width x height, i128 LE), then the blake3 hash of everything before it.
 use std::path::{Path, PathBuf};
 
 use crate::core::fs::write_atomic;
 use crate::error::{Error, Result};
-use crate::film::Film;
+use crate::film::{error::Bandwidth, Counts, Film, Halves};
 use crate::output::ExrMeta;
 
 use super::tasks::PassRange;
 
-const MAGIC: &[u8; 8] = b"PPBPART2";
+const MAGIC: &[u8; 8] = b"PPBPART3";
+/// Bytes of RGB sums a pixel: the image's and the nested ones, each of all passes and of
+/// the odd ones.
+const RGB_BYTES: u64 = 4 * 48;
 /// Largest header accepted (JSON; a real one is about 2 KB).
 const MAX_HEADER: usize = 1 << 20;
 
@@ -42,10 +45,14 @@ pub struct PartHeader {
     pub done: u32,
     /// How many of them are odd (`PassPlan::odd`): the second half-film's passes.
     pub odd_done: u32,
+    /// How many of them added the nested sums (the beams estimated on the CPU).
+    pub nested_done: u32,
     /// Render seconds spent on these passes (over every run of the task).
     pub seconds: f64,
     /// PNG exposure of the merged image.
     pub exposure: f32,
+    /// How the merged film becomes the image.
+    pub bandwidth: Bandwidth,
     /// EXR header attributes of the merged image.
     pub exr: ExrMeta,
 }
@@ -104,11 +111,14 @@ impl Part {
     /// Writes `film` (its passes are `header.done`) atomically to `path`.
     pub fn write(path: &Path, header: &PartHeader, film: &Film) -> Result<()> {
         let json = serde_json::to_vec(header).map_err(|e| Error::format(path, e.to_string()))?;
-        let mut bytes = Vec::with_capacity(12 + json.len() + film.sums().len() * 112 + 32);
+        let pixels = film.sums().all.len();
+        let mut bytes = Vec::with_capacity(12 + json.len() + pixels * 208 + 32);
         bytes.extend_from_slice(MAGIC);
         bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
         bytes.extend_from_slice(&json);
-        for px in film.sums().iter().chain(film.odd_sums()) {
+        let (image, nested) = (film.sums(), film.nested_sums());
+        let rgb = [&image.all, &image.odd, &nested.all, &nested.odd];
+        for px in rgb.into_iter().flatten() {
             for c in px {
                 bytes.extend_from_slice(&c.to_le_bytes());
             }
@@ -129,9 +139,9 @@ impl Part {
         let bad = |msg: &str| Error::format(path, format!("not a valid ppb part file: {msg}"));
         if bytes.len() < MAGIC.len() + 4 + 32 || &bytes[..8] != MAGIC {
             return Err(bad(if bytes.starts_with(b"PPBPART") {
-                "written by another version of ppb's part format (PPBPART2 expected)"
+                "written by another version of ppb's part format (PPBPART3 expected)"
             } else {
-                "no PPBPART2 signature"
+                "no PPBPART3 signature"
             }));
         }
         let (body, hash) = bytes.split_at(bytes.len() - 32);
@@ -146,10 +156,9 @@ impl Part {
             .map_err(|e| bad(&format!("header: {e}")))?;
         let data = &body[12 + len..];
         let pixels = header.width as u64 * header.height as u64;
-        // RGB sums of all passes and of the odd ones (96 bytes a pixel), then alpha sums
-        // (16) for a transparent film.
-        let rgb = pixels.checked_mul(96);
-        let with_alpha = pixels.checked_mul(112);
+        // RGB sums (RGB_BYTES a pixel), then alpha sums (16) for a transparent film.
+        let rgb = pixels.checked_mul(RGB_BYTES);
+        let with_alpha = pixels.checked_mul(RGB_BYTES + 16);
         if rgb != Some(data.len() as u64) && with_alpha != Some(data.len() as u64) {
             return Err(bad(&format!(
                 "{} bytes of sums for {}x{} pixels",
@@ -161,11 +170,11 @@ impl Part {
         if header.done > header.range.len() {
             return Err(bad("more passes done than its range holds"));
         }
-        if header.odd_done > header.done {
-            return Err(bad("more odd passes than passes done"));
+        if header.odd_done > header.done || header.nested_done > header.done {
+            return Err(bad("more odd or nested passes than passes done"));
         }
         let (data, alpha) = data.split_at(rgb.unwrap_or(0) as usize);
-        let (all, odd) = data.split_at(data.len() / 2);
+        let quarter = data.len() / 4;
         let sums = |d: &[u8]| -> Vec<[i128; 3]> {
             d.chunks_exact(48)
                 .map(|px| {
@@ -175,13 +184,17 @@ impl Part {
                 })
                 .collect()
         };
-        let mut film = Film::from_sums(
-            header.width,
-            header.height,
-            (header.done, sums(all)),
-            (header.odd_done, sums(odd)),
-        )
-        .ok_or_else(|| bad("size does not match the sums"))?;
+        let halves = |k: usize| Halves {
+            all: sums(&data[2 * k * quarter..(2 * k + 1) * quarter]),
+            odd: sums(&data[(2 * k + 1) * quarter..(2 * k + 2) * quarter]),
+        };
+        let counts = Counts {
+            passes: header.done,
+            odd: header.odd_done,
+            nested: header.nested_done,
+        };
+        let mut film = Film::from_sums(header.width, header.height, counts, halves(0), halves(1))
+            .ok_or_else(|| bad("size does not match the sums"))?;
         if !alpha.is_empty() {
             let alpha = alpha
                 .chunks_exact(16)
@@ -277,6 +290,7 @@ pub fn merge(mut parts: Vec<Part>) -> Result<(PartHeader, Film)> {
         },
         done: h0.passes,
         odd_done: film.odd_passes(),
+        nested_done: film.counts().nested,
         seconds: parts.iter().map(|p| p.header.seconds).sum(),
         ..h0
     };
@@ -305,8 +319,10 @@ mod tests {
             },
             done,
             odd_done: 0,
+            nested_done: 0,
             seconds: 1.0,
             exposure: 0.0,
+            bandwidth: Bandwidth::Fixed,
             exr: ExrMeta::default(),
         }
     }
@@ -315,15 +331,17 @@ mod tests {
         let mut film = Film::new(2, 1);
         for i in range.0..range.1 {
             film.add_pass(i % 2 == 0, &[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
+            film.add_nested(i % 2 == 0, &[Vec3::splat(-0.01 * i as f32), Vec3::ZERO]);
         }
         let path = dir.join(format!("p{}-{}.ppbpart", range.0, range.1));
         let h = PartHeader {
             odd_done: film.odd_passes(),
+            nested_done: film.counts().nested,
             ..header(range, range.1 - range.0)
         };
         Part::write(&path, &h, &film).unwrap();
         let part = Part::read(&path).unwrap();
-        // The half-film sums and their pass count come back too.
+        // The half-film and nested sums and their pass counts come back too.
         assert_eq!(part.film, film);
         part
     }

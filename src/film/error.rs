@@ -1,21 +1,37 @@
-//! How far the film is from converged, without a reference: the noise of the mean of the
-//! passes, from the film's two interleaved half-films. Hachisuka, Jarosz and Jensen (2010)
-//! estimate the noise of progressive density estimation from the spread of its passes; the
-//! difference of the half-films is that spread summed per pixel, and it is how ppb's
-//! conformance references are judged (two renders' rel_l1 / sqrt 2).
+//! How far the film is from converged, without a reference, and the per-pixel radius
+//! that brings it closer.
 //!
-//! With A the mean of the n_a even passes, B that of the n_b odd ones (alternate passes, or
-//! alternate groups of passes that share samples) and X the mean of all n = n_a + n_b:
-//! when the passes are independent, (A - B) sqrt(n_a n_b) / n
-//! has the variance of X - E[X] (exactly for equal variances, and nearly for the
-//! progressive passes' slowly growing ones, which interleaving splits evenly). Its absolute
-//! value summed over pixels and channels, over the sum of |X|, is the expected rel_l1 of X
-//! from its own mean. On 4x4 block means the same difference keeps the noise's correlation
-//! across pixels (a beam's kernel covers several), which an estimate from per-pixel
-//! variances would miss.
+//! **Noise.** Hachisuka, Jarosz and Jensen (2010) estimate the noise of progressive
+//! density estimation from the spread of its passes; the difference of the film's two
+//! interleaved half-films is that spread summed per pixel, and it is how ppb's
+//! conformance references are judged (two renders' rel_l1 / sqrt 2). With A the mean of
+//! the n_a even passes, B that of the n_b odd ones (alternate passes, or alternate groups
+//! of passes that share samples) and X the mean of all n = n_a + n_b: when the passes are
+//! independent, (A - B) sqrt(n_a n_b) / n has the variance of X - E[X] (exactly for equal
+//! variances, and nearly for the progressive passes' slowly growing ones, which
+//! interleaving splits evenly). On 4x4 block means the same difference keeps the noise's
+//! correlation across pixels (a beam's kernel covers several), which an estimate from
+//! per-pixel variances would miss.
 //!
-//! Not in it: the bias of the kernel's blur, which shrinks with the radii and is smaller
-//! than the noise at the budgets measured in docs/error-estimate.md.
+//! **Bias.** A kernel estimate's expectation is the radiance blurred by the kernel:
+//! L + c r^p + ..., with p = 2 where the radiance is smooth (the second derivatives of
+//! Hachisuka et al.'s bias term) and p = 1 at a medium's face, where the kernel's tube
+//! around a camera segment leaves the medium. Every kernel evaluation also counts at r/2
+//! (`estimate::eq2::Nested`), so the film holds D, the mean of (estimate at r/2 - estimate
+//! at r), with E[D] = -(1 - 2^-p) bias. The signed bias is estimated as -[`BIAS_PER_D`] D:
+//! exact for p = 1.5, within 0.77-1.16 of the truth from p = 2 to p = 1. Its size per
+//! pixel, sqrt(D^2 - var D) averaged over a window (D's own noise removed, the rest
+//! clipped at zero), enters the expected error as sqrt(bias^2 + noise^2).
+//!
+//! **Adaptive bandwidth** (Kaplanyan and Dachsbacher 2013 choose each point's radius by
+//! the same balance): the adaptive image is X + lambda D per pixel, the estimate of a
+//! kernel mixing radius r (weight 1 - lambda) and r/2 (weight lambda). lambda in [0, 1]
+//! minimises the estimated squared error, bias^2 (1 - lambda / K)^2 + var X +
+//! lambda^2 var D, from the same windowed moments: near 1 (the narrow kernel) where the
+//! bias is large, 0 (the wide one) where the radiance is smooth.
+//! It converges: both X and X + D are fixed-schedule estimates (radii r_i and r_i / 2,
+//! eq. 3) that converge to the radiance, and any lambda in [0, 1], however it was
+//! chosen, gives |X + lambda D - L| <= |X - L| + |D| <= 2 |X - L| + |X + D - L|.
 use super::Film;
 
 /// Block size of the low-frequency error (4x4 block means, as the conformance tests judge).
@@ -24,16 +40,43 @@ pub const BLOCK: usize = 4;
 /// Passes each half-film needs before its noise is estimated.
 pub const MIN_HALF_PASSES: u32 = 2;
 
+/// K: the bias of the image at radius r per unit of -D, 1 / (1 - 2^-1.5).
+pub const BIAS_PER_D: f64 = 1.547_005_383_792_515;
+
+/// How many of its own spreads the windowed bias must stand above zero before lambda
+/// narrows the kernel (the size estimate subtracts one): at 1, pure noise narrowed it in
+/// about 5 % of cloud-hg's pixels and raised its per-pixel error by 3 % at 300 passes; at
+/// 3, by 0.9 %, while fog-box's faces kept most of their gain (docs/error-estimate.md).
+const NARROW_SPREADS: f64 = 3.0;
+
+/// Half-widths of the windows the bias moments are averaged over: 5x5 pixels, 3x3 blocks.
+const PIXEL_WINDOW: usize = 2;
+const BLOCK_WINDOW: usize = 1;
+
 /// Per-pixel RGB in f64, row-major.
 type Pixels = Vec<[f64; 3]>;
 
-/// The expected rel_l1 of the film's image from its converged mean.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct ErrorEstimate {
+/// A rel_l1 on both metrics.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Rel {
     /// Per pixel and channel.
     pub pixel: f64,
     /// On the means of whole 4x4 blocks.
     pub block: f64,
+}
+
+/// The expected rel_l1 of the film's image from the converged radiance.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ErrorEstimate {
+    /// Noise and bias together, per pixel and channel ...
+    pub pixel: f64,
+    /// ... and on the means of whole 4x4 blocks.
+    pub block: f64,
+    /// The noise alone: the expected rel_l1 from the image's own mean.
+    pub noise: Rel,
+    /// The kernel's bias alone; None where the beams were estimated without nested sums
+    /// (on the GPU).
+    pub bias: Option<Rel>,
     /// Passes it was estimated from.
     pub passes: u32,
 }
@@ -57,15 +100,51 @@ pub enum Metric {
     Block,
 }
 
+/// How the film's sums become the image.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Bandwidth {
+    /// Every pixel at the radius of eq. 3 (the paper's).
+    #[default]
+    Fixed,
+    /// Each pixel's radius between r and r/2 by its estimated bias and noise.
+    Adaptive,
+}
+
+/// Means and scaled half-film differences of one quantity (the image, or D).
+struct Moments {
+    mean: Pixels,
+    dev: Pixels,
+}
+
+/// The film's moments as an image resolves them: the image's, D's when every pass added
+/// it, and each pixel's lambda.
+struct Resolved {
+    x: Moments,
+    d: Option<Moments>,
+    lambda: Vec<f64>,
+}
+
 impl Film {
-    /// The half-films' scaled difference per pixel (RGB) and the mean image; None until
-    /// each half holds [`MIN_HALF_PASSES`] passes.
-    fn deviation(&self) -> Option<(Pixels, Pixels)> {
-        let (nb, odd) = self.half(true);
-        let (na, even) = self.half(false);
+    /// The mean and scaled half-film difference of the image, or of the nested sums;
+    /// None until each half holds [`MIN_HALF_PASSES`] passes.
+    fn moments(&self, nested: bool) -> Option<Moments> {
+        let (nb, na) = (self.half_passes(true), self.half_passes(false));
         if na.min(nb) < MIN_HALF_PASSES {
             return None;
         }
+        let sums = if nested { &self.nested } else { &self.image };
+        let (odd, even) = (sums.half(true, nb), sums.half(false, na));
         let n = f64::from(na + nb);
         let scale = (f64::from(na) * f64::from(nb)).sqrt() / n;
         let (wa, wb) = (f64::from(na) / n, f64::from(nb) / n);
@@ -78,49 +157,205 @@ impl Film {
                 (d, x)
             })
             .unzip();
-        Some((dev, mean))
+        Some(Moments { mean, dev })
     }
 
-    /// The expected rel_l1 of the image from its converged mean, per pixel and on 4x4 block
-    /// means; None until each half-film holds [`MIN_HALF_PASSES`] passes.
-    pub fn error_estimate(&self) -> Option<ErrorEstimate> {
-        let (dev, mean) = self.deviation()?;
-        let l1 = |v: &[[f64; 3]]| v.iter().flatten().map(|x| x.abs()).sum::<f64>();
+    fn resolve(&self, bandwidth: Bandwidth) -> Option<Resolved> {
+        let x = self.moments(false)?;
+        let complete = self.counts.nested == self.counts.passes;
+        let d = complete.then(|| self.moments(true)).flatten();
         let (w, h) = (self.width as usize, self.height as usize);
-        let ratio = |d: f64, x: f64| if x > 0.0 { d / x } else { 0.0 };
+        let lambda = match (&d, bandwidth) {
+            (Some(d), Bandwidth::Adaptive) => lambdas(d, w, h),
+            _ => vec![0.0; w * h],
+        };
+        Some(Resolved { x, d, lambda })
+    }
+
+    /// The image as `bandwidth` resolves it (the fixed one where the nested sums are
+    /// missing or too few passes were made).
+    pub fn image_with(&self, bandwidth: Bandwidth) -> Vec<[f32; 3]> {
+        let Some(Resolved {
+            x: _,
+            d: Some(d),
+            lambda,
+        }) = (bandwidth == Bandwidth::Adaptive)
+            .then(|| self.resolve(bandwidth))
+            .flatten()
+        else {
+            return self.image();
+        };
+        self.image()
+            .iter()
+            .zip(&d.mean)
+            .zip(&lambda)
+            .map(|((x, d), l)| [0, 1, 2].map(|c| (f64::from(x[c]) + l * d[c]) as f32))
+            .collect()
+    }
+
+    /// The expected rel_l1 of the image `bandwidth` resolves from the converged
+    /// radiance, per pixel and on 4x4 block means; None until each half-film holds
+    /// [`MIN_HALF_PASSES`] passes.
+    pub fn error_estimate(&self, bandwidth: Bandwidth) -> Option<ErrorEstimate> {
+        let Resolved { x, d, lambda } = self.resolve(bandwidth)?;
+        let (w, h) = (self.width as usize, self.height as usize);
+        // The resolved image's mean and noise, and its bias and that estimate's noise.
+        let mix = |a: &Pixels, b: Option<&Pixels>| -> Pixels {
+            a.iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    let m = b.map_or([0.0; 3], |b| b[i]);
+                    [0, 1, 2].map(|c| v[c] + lambda[i] * m[c])
+                })
+                .collect()
+        };
+        let mean = mix(&x.mean, d.as_ref().map(|d| &d.mean));
+        let noise = mix(&x.dev, d.as_ref().map(|d| &d.dev));
+        let bias = d.as_ref().map(|d| {
+            let scale = |v: &Pixels| -> Pixels {
+                v.iter()
+                    .zip(&lambda)
+                    .map(|(p, l)| p.map(|c| -(BIAS_PER_D - l) * c))
+                    .collect()
+            };
+            (scale(&d.mean), scale(&d.dev))
+        });
+        let rel = |err: f64, m: &Pixels| {
+            let total = l1(m);
+            if total > 0.0 {
+                err / total
+            } else {
+                0.0
+            }
+        };
+        let block = |v: &Pixels| blocks(v, w, h);
+        let (bw, bh) = (w / BLOCK, h / BLOCK);
+        let (pixel_bias, block_bias) = match &bias {
+            Some((b, db)) => (
+                Some(bias_sizes(b, db, (w, h), PIXEL_WINDOW)),
+                Some(bias_sizes(&block(b), &block(db), (bw, bh), BLOCK_WINDOW)),
+            ),
+            None => (None, None),
+        };
+        let total = |noise: &Pixels, bias: &Option<Pixels>| -> f64 {
+            match bias {
+                Some(b) => noise
+                    .iter()
+                    .zip(b)
+                    .map(|(n, b)| (0..3).map(|c| n[c].hypot(b[c])).sum::<f64>())
+                    .sum(),
+                None => l1(noise),
+            }
+        };
+        let (block_mean, block_noise) = (block(&mean), block(&noise));
         Some(ErrorEstimate {
-            pixel: ratio(l1(&dev), l1(&mean)),
-            block: ratio(l1(&blocks(&dev, w, h)), l1(&blocks(&mean, w, h))),
-            passes: self.passes,
+            pixel: rel(total(&noise, &pixel_bias), &mean),
+            block: rel(total(&block_noise, &block_bias), &block_mean),
+            noise: Rel {
+                pixel: rel(l1(&noise), &mean),
+                block: rel(l1(&block_noise), &block_mean),
+            },
+            bias: pixel_bias.zip(block_bias).map(|(p, b)| Rel {
+                pixel: rel(l1(&p), &mean),
+                block: rel(l1(&b), &block_mean),
+            }),
+            passes: self.counts.passes,
         })
     }
 
-    /// Each pixel's expected absolute error per channel (radiance units): the half-films'
-    /// scaled difference, its absolute value averaged over the 3x3 pixels around (one
-    /// pixel's difference alone is a single draw); None as for [`Film::error_estimate`].
-    pub fn error_map(&self) -> Option<Vec<[f32; 3]>> {
-        let (dev, _) = self.deviation()?;
-        let (w, h) = (self.width as usize, self.height as usize);
-        let mut map = vec![[0f32; 3]; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (ys, xs) = (
-                    y.saturating_sub(1)..(y + 2).min(h),
-                    x.saturating_sub(1)..(x + 2).min(w),
-                );
-                let count = (ys.len() * xs.len()) as f64;
-                let mut sum = [0f64; 3];
-                for v in ys {
-                    for u in xs.clone() {
-                        let d = dev[v * w + u];
-                        (0..3).for_each(|c| sum[c] += d[c].abs());
-                    }
-                }
-                map[y * w + x] = sum.map(|s| (s / count) as f32);
-            }
-        }
-        Some(map)
+    /// Each pixel's signed bias estimate, -K D (radiance units, RGB), of the image at the
+    /// fixed bandwidth; None until the noise can be estimated or where the nested sums
+    /// are missing.
+    pub fn bias_map(&self) -> Option<Vec<[f64; 3]>> {
+        let d = self.resolve(Bandwidth::Fixed)?.d?;
+        Some(d.mean.iter().map(|v| v.map(|c| -BIAS_PER_D * c)).collect())
     }
+
+    /// Each pixel's expected absolute noise per channel (radiance units) in the fixed
+    /// image: the half-films' scaled difference, its absolute value averaged over the 3x3
+    /// pixels around (one pixel's difference alone is a single draw); None as for
+    /// [`Film::error_estimate`].
+    pub fn error_map(&self) -> Option<Vec<[f32; 3]>> {
+        let dev = self.moments(false)?.dev;
+        let (w, h) = (self.width as usize, self.height as usize);
+        let abs: Pixels = dev.iter().map(|d| d.map(f64::abs)).collect();
+        Some(
+            window_mean(&abs, w, h, 1)
+                .iter()
+                .map(|v| v.map(|c| c as f32))
+                .collect(),
+        )
+    }
+}
+
+fn l1(v: &[[f64; 3]]) -> f64 {
+    v.iter().flatten().map(|x| x.abs()).sum()
+}
+
+/// The mean of each pixel's (2 k + 1)^2 window, clipped at the image's edges.
+fn window_mean(v: &[[f64; 3]], w: usize, h: usize, k: usize) -> Pixels {
+    let mut out = vec![[0f64; 3]; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (ys, xs) = (
+                y.saturating_sub(k)..(y + k + 1).min(h),
+                x.saturating_sub(k)..(x + k + 1).min(w),
+            );
+            let count = (ys.len() * xs.len()) as f64;
+            let mut sum = [0f64; 3];
+            for v2 in ys {
+                for u in xs.clone() {
+                    let p = v[v2 * w + u];
+                    (0..3).for_each(|c| sum[c] += p[c]);
+                }
+            }
+            out[y * w + x] = sum.map(|s| s / count);
+        }
+    }
+    out
+}
+
+/// How large a signed bias estimate `b` (with its noise deviation `db`) is per pixel:
+/// sqrt of the window mean of b^2 - db^2 (the estimate's own noise removed), less that
+/// mean's own spread (about 2 db^2 / sqrt(window pixels) for Gaussian noise, so that
+/// pure noise rarely reads as bias), clipped at zero.
+fn bias_sizes(b: &Pixels, db: &Pixels, (w, h): (usize, usize), k: usize) -> Pixels {
+    let sq = |v: &Pixels| -> Pixels { v.iter().map(|p| p.map(|c| c * c)).collect() };
+    let (b2, db2) = (window_mean(&sq(b), w, h, k), window_mean(&sq(db), w, h, k));
+    let spread = 2.0 / ((2 * k + 1) as f64);
+    b2.iter()
+        .zip(&db2)
+        .map(|(s, n)| [0, 1, 2].map(|c| (s[c] - n[c] - spread * n[c]).max(0.0).sqrt()))
+        .collect()
+}
+
+/// Each pixel's lambda: the minimiser over [0, 1] of the estimated squared error of
+/// X + lambda D (see the module's comment), from the window means of the moments summed
+/// over the channels (one radius per pixel). cov(X, D) is taken as zero: with I and O the
+/// kernel's inner and outer halves' sums, X's beam part is (I + O) / 2r and D is
+/// (I - O) / 2r, whose covariance vanishes where the beams' density is locally even; its
+/// windowed estimate would only add noise to lambda.
+fn lambdas(d: &Moments, w: usize, h: usize) -> Vec<f64> {
+    let per_pixel = |f: &dyn Fn(usize, usize) -> f64| -> Pixels {
+        (0..w * h)
+            .map(|i| [f(i, 0) + f(i, 1) + f(i, 2), 0.0, 0.0])
+            .collect()
+    };
+    let e2 = per_pixel(&|i, c| d.mean[i][c].powi(2) - d.dev[i][c].powi(2));
+    let vd = per_pixel(&|i, c| d.dev[i][c].powi(2));
+    let k = PIXEL_WINDOW;
+    let spread = NARROW_SPREADS * 2.0 / ((2 * k + 1) as f64);
+    let (e2, vd) = (window_mean(&e2, w, h, k), window_mean(&vd, w, h, k));
+    (0..w * h)
+        .map(|i| {
+            let v = vd[i][0];
+            let e = (e2[i][0] - spread * v).max(0.0);
+            if e + v <= 0.0 {
+                return 0.0;
+            }
+            (BIAS_PER_D * e / (e + v)).min(1.0)
+        })
+        .collect()
 }
 
 /// Means over whole [`BLOCK`] x [`BLOCK`] blocks (a partial block at an edge is left out,
@@ -188,7 +423,9 @@ mod tests {
     fn matches_independent_noise_per_pixel_and_on_blocks() {
         // An odd pass count: halves of 12 and 13 passes.
         let (n, mean, sd) = (25, 2.0, 0.5);
-        let e = film(n, mean, 0.0, sd).error_estimate().unwrap();
+        let e = film(n, mean, 0.0, sd)
+            .error_estimate(Bandwidth::Fixed)
+            .unwrap();
         let want = expected(f64::from(sd), n, f64::from(mean));
         let tol = tolerance(64 * 64 * 3);
         assert!((e.pixel / want - 1.0).abs() < tol, "{} vs {want}", e.pixel);
@@ -203,7 +440,9 @@ mod tests {
     #[test]
     fn keeps_noise_correlated_across_a_block() {
         let (n, mean, bsd, psd) = (16, 1.0f32, 0.3f32, 0.4f32);
-        let e = film(n, mean, bsd, psd).error_estimate().unwrap();
+        let e = film(n, mean, bsd, psd)
+            .error_estimate(Bandwidth::Fixed)
+            .unwrap();
         let (b, p) = (f64::from(bsd), f64::from(psd));
         let pixel = expected((b * b + p * p).sqrt(), n, f64::from(mean));
         let block = expected((b * b + p * p / 16.0).sqrt(), n, f64::from(mean));
@@ -221,11 +460,80 @@ mod tests {
         );
     }
 
+    /// `passes` passes of a 64x64 film of mean `mean` whose nested sums say its bias is
+    /// `bias`: each pixel's beam estimate is the sum of an inner and an outer half
+    /// (independent, sd `sd` each), X = mean + bias + (a + b) and D = -bias / K + (a - b),
+    /// the nested kernel's structure (`lambdas`).
+    fn nested_film(passes: u32, mean: f32, bias: f32, sd: f32) -> Film {
+        const N: usize = 64;
+        let mut film = Film::new(N as u32, N as u32);
+        let mut rng = Rng::new(9, 2);
+        let k = BIAS_PER_D as f32;
+        for i in 1..=passes {
+            let (x, d): (Vec<Vec3>, Vec<Vec3>) = (0..N * N)
+                .map(|_| {
+                    let (a, b) = (sd * gauss(&mut rng), sd * gauss(&mut rng));
+                    (
+                        Vec3::splat(mean + bias + a + b),
+                        Vec3::splat(-bias / k + a - b),
+                    )
+                })
+                .unzip();
+            film.add_pass(i % 2 == 1, &x);
+            film.add_nested(i % 2 == 1, &d);
+        }
+        film
+    }
+
+    /// A bias well above the noise is measured at its size (the window's noise
+    /// correction, 0.4 K^2 var D against bias^2 = 0.09, moves it by under 0.2 %; the
+    /// window means of 4096 pixels leave well under 1 %), and the adaptive image takes
+    /// the narrow kernel everywhere: its bias is the r/2 estimate's, (1 - 1/K) of it.
+    #[test]
+    fn nested_sums_measure_a_bias_and_narrow_the_kernel() {
+        let (mean, bias, sd) = (2.0f32, 0.3f32, 0.1f32);
+        let f = nested_film(64, mean, bias, sd);
+        let e = f.error_estimate(Bandwidth::Fixed).unwrap();
+        let want = f64::from(bias / (mean + bias));
+        let got = e.bias.unwrap().pixel;
+        assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");
+        let adaptive = f.image_with(Bandwidth::Adaptive);
+        let avg = adaptive.iter().map(|p| f64::from(p[0])).sum::<f64>() / 4096.0;
+        let narrow = f64::from(mean) + f64::from(bias) * (1.0 - 1.0 / BIAS_PER_D);
+        // The mean of 4096 pixels of sd sqrt(2 sd^2 / 64) each: 4 standard errors.
+        let tol = 4.0 * (2.0 * f64::from(sd * sd) / 64.0 / 4096.0).sqrt();
+        assert!((avg - narrow).abs() < tol, "{avg} vs {narrow}");
+        let a = f.error_estimate(Bandwidth::Adaptive).unwrap();
+        assert!(a.bias.unwrap().pixel < 0.5 * got, "{a:?}");
+    }
+
+    /// Without a bias the nested sums read as little bias and keep the wide kernel nearly
+    /// everywhere: windowed over 25 pixels and less one spread of its own, pure noise
+    /// leaves at most about 0.18 K sqrt(var D) (Jensen's bound on E sqrt(max(0, Z - 1)
+    /// 0.4)), a third of the noise E|dev| = 0.8 sqrt(var X); lambda, at three spreads, is
+    /// far less often above zero than the size estimate (whose mean would be about
+    /// K 0.083 0.4 = 0.05 at one).
+    #[test]
+    fn nested_sums_without_bias_keep_the_wide_kernel() {
+        let f = nested_film(64, 2.0, 0.0, 0.1);
+        let e = f.error_estimate(Bandwidth::Fixed).unwrap();
+        let bias = e.bias.unwrap().pixel;
+        assert!(bias < 0.35 * e.noise.pixel, "{e:?}");
+        let d = f.moments(true).unwrap();
+        let lambda = lambdas(&d, 64, 64);
+        let mean = lambda.iter().sum::<f64>() / lambda.len() as f64;
+        assert!(mean < 0.08, "mean lambda {mean}");
+        // The total is noise and bias together, at least the noise.
+        assert!(e.pixel >= e.noise.pixel && e.pixel < e.noise.pixel + bias);
+    }
+
     #[test]
     fn waits_for_two_passes_in_each_half_and_maps_every_pixel() {
-        assert!(film(3, 1.0, 0.0, 0.1).error_estimate().is_none());
+        assert!(film(3, 1.0, 0.0, 0.1)
+            .error_estimate(Bandwidth::Fixed)
+            .is_none());
         let f = film(4, 1.0, 0.0, 0.1);
-        assert!(f.error_estimate().is_some());
+        assert!(f.error_estimate(Bandwidth::Fixed).is_some());
         let map = f.error_map().unwrap();
         assert_eq!(map.len(), 64 * 64);
         let mean = map.iter().flatten().map(|&v| f64::from(v)).sum::<f64>() / (3.0 * 4096.0);
@@ -235,6 +543,12 @@ mod tests {
             "{mean} vs {want}"
         );
         // A noiseless film has no error.
-        assert_eq!(film(4, 1.0, 0.0, 0.0).error_estimate().unwrap().pixel, 0.0);
+        assert_eq!(
+            film(4, 1.0, 0.0, 0.0)
+                .error_estimate(Bandwidth::Fixed)
+                .unwrap()
+                .pixel,
+            0.0
+        );
     }
 }

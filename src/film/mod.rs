@@ -8,7 +8,10 @@
 //!
 //! Beside the sums of all passes the film keeps those of the odd passes (those of
 //! odd-numbered groups where passes share samples, `plan::Plan::group`): two interleaved
-//! half-films, whose difference is the reference-free noise estimate of [`error`].
+//! half-films, whose difference is the reference-free noise estimate of [`error`]. And
+//! beside the image it keeps the nested sums: the beam estimate at half the radius minus
+//! the one at the radius (`estimate::eq2::Nested`), whose mean estimates the kernel's
+//! bias and lets [`error`] choose a radius per pixel.
 pub mod error;
 
 use crate::core::Rgb;
@@ -18,17 +21,77 @@ use crate::core::Rgb;
 pub const FRACTION_BITS: i32 = 48;
 const SCALE: f64 = (1u64 << FRACTION_BITS) as f64;
 
+/// Per-pixel fixed-point RGB sums of all passes and of the odd passes alone.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Halves {
+    pub all: Vec<[i128; 3]>,
+    pub odd: Vec<[i128; 3]>,
+}
+
+impl Halves {
+    fn new(pixels: usize) -> Self {
+        Halves {
+            all: vec![[0; 3]; pixels],
+            odd: vec![[0; 3]; pixels],
+        }
+    }
+
+    fn add(&mut self, odd: bool, img: &[Rgb]) {
+        for ((s, o), p) in self.all.iter_mut().zip(&mut self.odd).zip(img) {
+            let v = [fixed(p.x), fixed(p.y), fixed(p.z)];
+            for c in 0..3 {
+                s[c] += v[c];
+                if odd {
+                    o[c] += v[c];
+                }
+            }
+        }
+    }
+
+    fn merge(&mut self, other: &Halves) {
+        for (mine, theirs) in [(&mut self.all, &other.all), (&mut self.odd, &other.odd)] {
+            for (s, o) in mine.iter_mut().zip(theirs) {
+                for c in 0..3 {
+                    s[c] += o[c];
+                }
+            }
+        }
+    }
+
+    /// The mean over the odd or the even passes, `n` of them.
+    fn half(&self, odd: bool, n: u32) -> Vec<[f64; 3]> {
+        let inv = 1.0 / n.max(1) as f64;
+        self.all
+            .iter()
+            .zip(&self.odd)
+            .map(|(s, o)| [0, 1, 2].map(|c| float(if odd { o[c] } else { s[c] - o[c] }) * inv))
+            .collect()
+    }
+
+    fn matches(&self, pixels: usize) -> bool {
+        self.all.len() == pixels && self.odd.len() == pixels
+    }
+}
+
+/// How many passes a film holds: all, the odd ones, and those whose estimate added the
+/// nested sums (all of them on the CPU; none where the GPU estimated the beams).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    pub passes: u32,
+    pub odd: u32,
+    pub nested: u32,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct Film {
     pub width: u32,
     pub height: u32,
-    sum: Vec<[i128; 3]>,
-    /// Sums of the odd passes alone.
-    odd: Vec<[i128; 3]>,
-    odd_passes: u32,
+    image: Halves,
+    /// Sums of the nested half-radius difference.
+    nested: Halves,
+    counts: Counts,
     /// Alpha sums (a transparent film), else empty.
     alpha: Vec<i128>,
-    passes: u32,
 }
 
 /// `x` as a fixed-point value; non-finite values (never produced by a correct pass)
@@ -43,40 +106,45 @@ fn float(s: i128) -> f64 {
 
 impl Film {
     pub fn new(width: u32, height: u32) -> Self {
+        let pixels = (width * height) as usize;
         Film {
             width,
             height,
-            sum: vec![[0; 3]; (width * height) as usize],
-            odd: vec![[0; 3]; (width * height) as usize],
-            odd_passes: 0,
+            image: Halves::new(pixels),
+            nested: Halves::new(pixels),
+            counts: Counts::default(),
             alpha: Vec::new(),
-            passes: 0,
         }
     }
 
-    /// A film from stored sums (a part file): `sum` over `passes` passes, `odd` over the
-    /// `odd_passes` odd ones; None when a pixel count does not match the size.
+    /// A film from stored sums (a part file): the image's and the nested ones over the
+    /// passes `counts` gives; None when a pixel count does not match the size or the
+    /// counts do not add up.
     pub fn from_sums(
         width: u32,
         height: u32,
-        (passes, sum): (u32, Vec<[i128; 3]>),
-        (odd_passes, odd): (u32, Vec<[i128; 3]>),
+        counts: Counts,
+        image: Halves,
+        nested: Halves,
     ) -> Option<Self> {
         let n = (width as usize) * (height as usize);
-        (sum.len() == n && odd.len() == n && odd_passes <= passes).then_some(Film {
+        let ok = image.matches(n)
+            && nested.matches(n)
+            && counts.odd <= counts.passes
+            && counts.nested <= counts.passes;
+        ok.then_some(Film {
             width,
             height,
-            sum,
-            odd,
-            odd_passes,
+            image,
+            nested,
+            counts,
             alpha: Vec::new(),
-            passes,
         })
     }
 
     /// With stored alpha sums (one per pixel); None when the count does not match.
     pub fn with_alpha_sums(self, alpha: Vec<i128>) -> Option<Self> {
-        (alpha.len() == self.sum.len()).then_some(Film { alpha, ..self })
+        (alpha.len() == self.image.all.len()).then_some(Film { alpha, ..self })
     }
 
     /// The fixed-point alpha sums (empty unless the film is transparent).
@@ -90,7 +158,7 @@ impl Film {
             return;
         }
         if self.alpha.is_empty() {
-            self.alpha = vec![0; self.sum.len()];
+            self.alpha = vec![0; self.image.all.len()];
         }
         for (s, &a) in self.alpha.iter_mut().zip(alpha) {
             *s += fixed(a);
@@ -99,7 +167,7 @@ impl Film {
 
     /// The mean alpha over passes, when the film is transparent.
     pub fn alpha(&self) -> Option<Vec<f32>> {
-        let inv = 1.0 / self.passes.max(1) as f64;
+        let inv = 1.0 / self.counts.passes.max(1) as f64;
         (!self.alpha.is_empty()).then(|| {
             self.alpha
                 .iter()
@@ -108,71 +176,70 @@ impl Film {
         })
     }
 
-    /// The fixed-point sums, row-major RGB.
-    pub fn sums(&self) -> &[[i128; 3]] {
-        &self.sum
+    /// The image's fixed-point sums, row-major RGB, of all passes and of the odd ones.
+    pub fn sums(&self) -> &Halves {
+        &self.image
     }
 
-    /// The fixed-point sums of the odd passes, row-major RGB.
-    pub fn odd_sums(&self) -> &[[i128; 3]] {
-        &self.odd
+    /// The nested half-radius difference's sums.
+    pub fn nested_sums(&self) -> &Halves {
+        &self.nested
+    }
+
+    pub fn counts(&self) -> Counts {
+        self.counts
     }
 
     /// Adds `img` to the sums of the current pass, odd or not (one pass adds several
     /// estimates).
     pub fn add(&mut self, odd: bool, img: &[Rgb]) {
-        for ((s, o), p) in self.sum.iter_mut().zip(&mut self.odd).zip(img) {
-            let v = [fixed(p.x), fixed(p.y), fixed(p.z)];
-            for c in 0..3 {
-                s[c] += v[c];
-                if odd {
-                    o[c] += v[c];
-                }
-            }
-        }
+        self.image.add(odd, img);
     }
 
     /// Adds `img` as the first estimate of a pass, odd or not, and counts the pass.
     pub fn add_pass(&mut self, odd: bool, img: &[Rgb]) {
         self.add(odd, img);
-        self.passes += 1;
-        self.odd_passes += u32::from(odd);
+        self.counts.passes += 1;
+        self.counts.odd += u32::from(odd);
+    }
+
+    /// Adds the current pass's nested half-radius difference (once per pass) and counts it.
+    pub fn add_nested(&mut self, odd: bool, d: &[Rgb]) {
+        self.nested.add(odd, d);
+        self.counts.nested += 1;
     }
 
     /// Adds another film's sums and passes (same size); the result does not depend on
     /// the order in which films are merged.
     pub fn merge(&mut self, other: &Film) {
         debug_assert_eq!((self.width, self.height), (other.width, other.height));
-        for (mine, theirs) in [(&mut self.sum, &other.sum), (&mut self.odd, &other.odd)] {
-            for (s, o) in mine.iter_mut().zip(theirs) {
-                for c in 0..3 {
-                    s[c] += o[c];
-                }
-            }
-        }
+        self.image.merge(&other.image);
+        self.nested.merge(&other.nested);
         if self.alpha.is_empty() {
             self.alpha = vec![0; other.alpha.len()];
         }
         for (s, o) in self.alpha.iter_mut().zip(&other.alpha) {
             *s += o;
         }
-        self.passes += other.passes;
-        self.odd_passes += other.odd_passes;
+        self.counts.passes += other.counts.passes;
+        self.counts.odd += other.counts.odd;
+        self.counts.nested += other.counts.nested;
     }
 
     pub fn passes(&self) -> u32 {
-        self.passes
+        self.counts.passes
     }
 
     /// Odd passes.
     pub fn odd_passes(&self) -> u32 {
-        self.odd_passes
+        self.counts.odd
     }
 
     /// The current estimate: mean over passes, row-major RGB.
     pub fn image(&self) -> Vec<[f32; 3]> {
-        let inv = 1.0 / self.passes.max(1) as f64;
-        self.sum
+        let inv = 1.0 / self.counts.passes.max(1) as f64;
+        self.image
+            .all
             .iter()
             .map(|s| s.map(|c| (float(c) * inv) as f32))
             .collect()
@@ -181,8 +248,9 @@ impl Film {
     /// The current estimate with `extra` (per-pixel sums over the same passes, the GPU's
     /// beam accumulators) added.
     pub fn image_plus(&self, extra: &Held) -> Vec<[f32; 3]> {
-        let inv = 1.0 / self.passes.max(1) as f64;
-        self.sum
+        let inv = 1.0 / self.counts.passes.max(1) as f64;
+        self.image
+            .all
             .iter()
             .zip(extra[0].iter().zip(&extra[1]))
             .map(|(s, (e, o))| {
@@ -195,7 +263,7 @@ impl Film {
     /// it, once, so the film can be shown or stored.
     pub fn absorb(&mut self, extra: &Held) {
         let [even, odd] = extra;
-        let pixels = self.sum.iter_mut().zip(&mut self.odd);
+        let pixels = self.image.all.iter_mut().zip(&mut self.image.odd);
         for ((s, o), (e, d)) in pixels.zip(even.iter().zip(odd)) {
             for c in 0..3 {
                 let (e, d) = (fixed(e[c]), fixed(d[c]));
@@ -211,21 +279,13 @@ impl Film {
 pub type Held = [Vec<[f32; 4]>; 2];
 
 impl Film {
-    /// The mean over the odd or the even passes, and how many they are.
-    fn half(&self, odd: bool) -> (u32, Vec<[f64; 3]>) {
-        let n = if odd {
-            self.odd_passes
+    /// How many passes the odd or the even half holds.
+    fn half_passes(&self, odd: bool) -> u32 {
+        if odd {
+            self.counts.odd
         } else {
-            self.passes - self.odd_passes
-        };
-        let inv = 1.0 / n.max(1) as f64;
-        let mean = self
-            .sum
-            .iter()
-            .zip(&self.odd)
-            .map(|(s, o)| [0, 1, 2].map(|c| float(if odd { o[c] } else { s[c] - o[c] }) * inv))
-            .collect();
-        (n, mean)
+            self.counts.passes - self.counts.odd
+        }
     }
 }
 

@@ -38,6 +38,7 @@ pub(super) fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettin
         )?,
         free_path: ck.word("render.free_path", r.free_path.as_deref(), d.free_path)?,
         method: ck.word("render.method", r.method.as_deref(), d.method)?,
+        bandwidth: ck.word("render.bandwidth", r.bandwidth.as_deref(), d.bandwidth)?,
         ..d
     };
     s.validate()

@@ -44,6 +44,7 @@ pub(super) struct FileRender {
     pub(super) method: Option<String>,
     pub(super) nee_samples: Option<usize>,
     pub(super) transparent: Option<bool>,
+    pub(super) bandwidth: Option<String>,
 }
 
 #[derive(Deserialize)]
