@@ -1,8 +1,10 @@
 // The beam radiance estimate (eq. 2) for every camera segment of one pass, in two kernels:
 // `segment_main`, one invocation per segment, walks the beam BVH and writes
 // beta * sum(k_r(d) sigma_s(x) f(cos) Phi Tr(t) / sin(theta)) (and, in w, the number of
-// kernel evaluations); `pixel_main`, one invocation per pixel, adds its segments' results
-// to the pixel's float32 accumulator in segment order (deterministic sums).
+// kernel evaluations), then the nested half-radius difference (`estimate::eq2::Nested`);
+// `pixel_main`, one invocation per pixel, adds its segments' results to the pixel's
+// float32 accumulators in segment order (deterministic sums). Segment results and
+// accumulators hold two vec4 each: the estimate and count, then the nested difference.
 // Primary segments may instead be rasterised (the original PPB's beam quads): `quad_vs`
 // draws each beam as a film rectangle covering every pixel its kernel can reach, and
 // `quad_fs` evaluates the same term for the pixel's primary segment into an additively
@@ -76,6 +78,7 @@ struct BeamQuad {
 // pass's first round, and how many walks a round left unfinished ([0]) or had cut ([1]).
 @group(0) @binding(15) var<storage, read_write> walk_state: array<vec2<u32>>;
 @group(0) @binding(16) var<storage, read_write> walks_left: array<atomic<u32>, 2>;
+@group(0) @binding(17) var primary_nested: texture_2d<f32>;
 
 // The grid transmittance estimate at t: the value after the last step before t.
 fn grid_tr(seg: Segment, t: f32) -> f32 {
@@ -114,10 +117,17 @@ fn camera_tr(seg: Segment, inv: vec3<f32>, t: f32) -> f32 {
     return exp(-tau) * grid;
 }
 
-// The piece's eq. 2 term in xyz, and 1 in w when the pair counts: `estimate::eq2::term`,
-// the same arithmetic (`crossing`) and the same half-open edge rule, t0 <= t < t1,
-// s0 <= s < s1, d^2 < r^2 (sin^2 theta >= 1e-10: not parallel).
-fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
+// A pair's eq. 2 term in l.xyz and 1 in l.w when it counts, and its nested half-radius
+// difference in d.xyz: +l where it counts at r/2 too (d^2 < r^2 / 4), else -l.
+struct Term {
+    l: vec4<f32>,
+    d: vec4<f32>,
+}
+
+// The piece's eq. 2 term: `estimate::eq2::nested_term`, the same arithmetic (`crossing`)
+// and the same half-open edge rule, t0 <= t < t1, s0 <= s < s1, d^2 < r^2
+// (sin^2 theta >= 1e-10: not parallel).
+fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
     let r = params.radius;
     let w = seg.dir;
     let psi = p.dir;
@@ -131,11 +141,13 @@ fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> vec4<f32> {
     let s = (e - b * d) / sin2_safe;
     let v = w0 + w * t - psi * s;
     let ok = sin2 >= 1e-10 && dot(v, v) < r * r && seg.t0 <= t && t < seg.t1 && p.s0 <= s && s < p.s1;
-    var out = vec4<f32>(0.0);
+    var out = Term(vec4<f32>(0.0), vec4<f32>(0.0));
     if ok {
         let x = seg.origin + w * t;
         let f = in_scatter(x, dot(psi, -w));
-        out = vec4<f32>(f * p.power * ((0.5 / r) * camera_tr(seg, inv, t) / sqrt(sin2)), 1.0);
+        let l = f * p.power * ((0.5 / r) * camera_tr(seg, inv, t) / sqrt(sin2));
+        out.l = vec4<f32>(l, 1.0);
+        out.d = vec4<f32>(select(-l, l, 4.0 * dot(v, v) < r * r), 0.0);
     }
     return out;
 }
@@ -154,7 +166,7 @@ fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
 // stopped.
 fn segment_radiance(seg: Segment, i: u32) -> Walked {
     let inv = safe_inv(seg.dir);
-    var sum = vec4<f32>(0.0);
+    var sum = Term(vec4<f32>(0.0), vec4<f32>(0.0));
     var node = walk_state[i].x;
     var k = walk_state[i].y;
     var it = 0u;
@@ -166,7 +178,9 @@ fn segment_radiance(seg: Segment, i: u32) -> Walked {
         } else if n.count == 0u {
             node = node + 1u;
         } else {
-            sum += piece_radiance(seg, inv, pieces[n.first + k]);
+            let term = piece_radiance(seg, inv, pieces[n.first + k]);
+            sum.l += term.l;
+            sum.d += term.d;
             k = k + 1u;
             if k == n.count {
                 k = 0u;
@@ -180,7 +194,7 @@ fn segment_radiance(seg: Segment, i: u32) -> Walked {
 
 // A round of one segment's walk: its sum, where it stopped, and whether the adapter cut it.
 struct Walked {
-    sum: vec4<f32>,
+    sum: Term,
     state: vec2<u32>,
     cut: bool,
 }
@@ -201,8 +215,9 @@ fn segment_main(@builtin(global_invocation_id) id: vec3<u32>) {
         atomicAdd(&walks_left[1], 1u);
     } else {
         // In one unbounded round a cut cannot be redone: mark the sums as wrong.
-        let r = select(w.sum, vec4<f32>(LOOP_CUT), w.cut);
-        seg_out[i] += vec4<f32>(seg.beta * r.xyz, r.w);
+        let r = select(w.sum.l, vec4<f32>(LOOP_CUT), w.cut);
+        seg_out[2u * i] += vec4<f32>(seg.beta * r.xyz, r.w);
+        seg_out[2u * i + 1u] += vec4<f32>(seg.beta * w.sum.d.xyz, 0.0);
         walk_state[i] = w.state;
         if w.state.x != EMPTY {
             atomicAdd(&walks_left[0], 1u);
@@ -217,14 +232,19 @@ fn pixel_main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let pixel = chunk.first + id.x;
     var l = vec4<f32>(0.0);
+    var d = vec4<f32>(0.0);
     let w = params.raster_width;
     if w > 0u {
-        l = textureLoad(primary_sums, vec2<u32>(pixel % w, pixel / w), 0);
+        let at = vec2<u32>(pixel % w, pixel / w);
+        l = textureLoad(primary_sums, at, 0);
+        d = textureLoad(primary_nested, at, 0);
     }
     for (var i = pixel_first[pixel]; i < pixel_first[pixel + 1u]; i++) {
-        l += seg_out[i];
+        l += seg_out[2u * i];
+        d += seg_out[2u * i + 1u];
     }
-    accum[pixel] += l;
+    accum[2u * pixel] += l;
+    accum[2u * pixel + 1u] += d;
 }
 
 struct QuadOut {
@@ -242,13 +262,19 @@ fn quad_vs(@builtin(vertex_index) v: u32, @builtin(instance_index) q: u32) -> Qu
     return out;
 }
 
+// The pair's term into the first target, its nested difference into the second.
+struct QuadSums {
+    @location(0) l: vec4<f32>,
+    @location(1) d: vec4<f32>,
+}
+
 @fragment
-fn quad_fs(in: QuadOut) -> @location(0) vec4<f32> {
+fn quad_fs(in: QuadOut) -> QuadSums {
     let px = vec2<u32>(in.pos.xy);
     let seg = primaries[px.y * params.raster_width + px.x];
     let r = piece_radiance(seg, safe_inv(seg.dir), quads[in.quad].piece);
-    if r.w == 0.0 {
+    if r.l.w == 0.0 {
         discard;
     }
-    return r;
+    return QuadSums(r.l, r.d);
 }

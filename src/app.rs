@@ -95,7 +95,7 @@ pub struct Overrides {
     /// The beams' kernel radius per pixel (overrides [render].bandwidth): fixed (eq. 3's
     /// radius everywhere, the paper's) or adaptive (each pixel's between that radius and
     /// its half, by the estimated bias and noise: narrower at edges, wider where the
-    /// radiance is smooth). Adaptive needs the beam estimate on the CPU.
+    /// radiance is smooth).
     #[arg(long, value_enum)]
     pub bandwidth: Option<ppb::settings::Bandwidth>,
 }
@@ -301,19 +301,8 @@ fn output_path(scene: &Path, over: Option<&PathBuf>) -> Result<PathBuf> {
     Ok(out)
 }
 
-/// Opens the device for the beam estimate and says which in one line. With `auto`, the
-/// adaptive bandwidth keeps the estimate on the CPU (the GPU's has no nested sums).
-pub fn open_device(
-    kind: DeviceKind,
-    bandwidth: Option<Bandwidth>,
-    quiet: bool,
-) -> Result<Option<Gpu>> {
-    if kind == DeviceKind::Auto && bandwidth == Some(Bandwidth::Adaptive) {
-        if !quiet {
-            eprintln!("beam estimate on the CPU (the adaptive bandwidth needs it there)");
-        }
-        return Ok(None);
-    }
+/// Opens the device for the beam estimate and says which in one line.
+pub fn open_device(kind: DeviceKind, quiet: bool) -> Result<Option<Gpu>> {
     let gpu = ppb::gpu::open(kind)?;
     if !quiet {
         match &gpu {

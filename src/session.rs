@@ -11,7 +11,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::estimate::Timings;
 use crate::estimate::{cpu::CpuBeams, Estimator};
-use crate::film::error::{Bandwidth, ErrorEstimate};
+use crate::film::error::ErrorEstimate;
 use crate::film::Film;
 use crate::gpu::beams::{CameraTr, GpuBeams, GpuOptions, GpuStats, PrimaryPath};
 use crate::gpu::Gpu;
@@ -96,11 +96,6 @@ impl Session {
         camera_tr: CameraTr,
     ) -> Result<Self> {
         let beams = match gpu {
-            Some(_) if tracer.settings.bandwidth == Bandwidth::Adaptive => {
-                return Err(Error::Other(
-                    "the adaptive bandwidth needs the beam estimate on the CPU: the GPU's keeps no nested half-radius sums yet (use --bandwidth fixed, or --device cpu)".into(),
-                ))
-            }
             Some(g) => {
                 let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
                 Beams::Gpu(Box::new(GpuBeams::new(
@@ -221,9 +216,14 @@ impl Session {
     /// The current image: the mean over passes at the settings' bandwidth (reads the
     /// GPU's sums back).
     pub fn image(&mut self) -> Result<Image> {
+        let bandwidth = self.tracer.settings.bandwidth;
         let pixels = match self.beams.get().held()? {
-            None => self.film.image_with(self.tracer.settings.bandwidth),
-            Some(acc) => self.film.image_plus(&acc),
+            None => self.film.image_with(bandwidth),
+            Some(acc) => {
+                let mut film = self.film.clone();
+                film.absorb(&acc);
+                film.image_with(bandwidth)
+            }
         };
         Ok(Image {
             width: self.film.width as usize,

@@ -322,8 +322,8 @@ fn target_error_refuses_what_it_cannot_do() {
     assert!(!out.exists());
 }
 
-/// `--bandwidth adaptive` renders on the CPU with the bias in the stats and the EXR
-/// header; asked for on a GPU it is refused with the reason.
+/// `--bandwidth adaptive` renders with the bias in the stats and the EXR header, on the
+/// CPU and on a GPU (where one is found; lavapipe in CI) alike.
 #[test]
 fn adaptive_bandwidth_from_the_command_line() {
     let dir = common::temp_dir("error", "adaptive");
@@ -348,11 +348,12 @@ fn adaptive_bandwidth_from_the_command_line() {
     let attr = |k: &str| header.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
     assert_eq!(attr("ppb/bandwidth").as_deref(), Some("adaptive"));
     assert!(attr("ppb/estimated_bias_rel_l1").is_some());
+    let gpu_out = dir.join("g.exr");
     let gpu = ppb()
-        .args(small(&dir.join("g.exr")))
+        .args(small(&gpu_out))
         .args([
             "--passes",
-            "4",
+            "8",
             "--bandwidth",
             "adaptive",
             "--device",
@@ -361,10 +362,16 @@ fn adaptive_bandwidth_from_the_command_line() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&gpu.stderr);
-    assert!(!gpu.status.success(), "{err}");
+    if err.contains("no GPU adapter found") {
+        assert!(!gpu.status.success() && !gpu_out.exists());
+        return;
+    }
+    assert!(gpu.status.success(), "{err}");
+    let (cpu_img, gpu_img) = (read_exr(&out).unwrap(), read_exr(&gpu_out).unwrap());
+    let m = compare(&gpu_img, &cpu_img, None).unwrap();
     assert!(
-        err.contains("needs the beam estimate on the CPU") || err.contains("no GPU"),
-        "{err}"
+        m.rel_l1 < 1e-4,
+        "the GPU's adaptive image differs: {}",
+        m.rel_l1
     );
-    assert!(!dir.join("g.exr").exists());
 }

@@ -21,8 +21,8 @@ use ppb::media::{Media, MediumDesc, Phase};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::scene::Camera;
-use ppb::settings::TrMode;
 use ppb::settings::MAX_TR_SAMPLES;
+use ppb::settings::{Bandwidth, TrMode};
 use ppb::transport::camera::{CameraPass, Pinhole, Primary};
 use ppb::transport::freepath::RatioSteps;
 use ppb::transport::transmittance::SegmentTr;
@@ -211,9 +211,37 @@ fn auto_primary_picks_by_measurement() {
         ce.expect("cpu").expect("6 passes"),
     );
     eprintln!("error estimate after 6 passes: gpu {ge:?}, cpu {ce:?}");
-    for (g, c) in [(ge.pixel, ce.pixel), (ge.block, ce.block)] {
+    let (gb, cb) = (ge.bias.expect("gpu nested sums"), ce.bias.expect("cpu"));
+    for (g, c) in [
+        (ge.pixel, ce.pixel),
+        (ge.block, ce.block),
+        (ge.noise.pixel, ce.noise.pixel),
+        (gb.pixel, cb.pixel),
+    ] {
         assert!(c > 0.0 && (g / c - 1.0).abs() < 1e-2, "gpu {g} cpu {c}");
     }
+    // The nested sums agree too: the adaptive images (each pixel's radius chosen from
+    // them) and the bias maps.
+    let (gf, cf) = (gpu.film().expect("gpu film"), cpu.film().expect("cpu film"));
+    let image = |f: &ppb::film::Film, px| ppb::output::Image {
+        width: f.width as usize,
+        height: f.height as usize,
+        pixels: px,
+        alpha: None,
+    };
+    let adaptive = |f: &ppb::film::Film| image(f, f.image_with(Bandwidth::Adaptive));
+    let m = ppb::compare::compare(&adaptive(&gf), &adaptive(&cf), None).expect("same size");
+    eprintln!("adaptive images: rel_l1 {:.2e}", m.rel_l1);
+    assert!(m.rel_l1 < 1e-4, "adaptive: rel_l1 {}", m.rel_l1);
+    let (gm, cm) = (gf.bias_map().expect("gpu"), cf.bias_map().expect("cpu"));
+    let diff: f64 = gm
+        .iter()
+        .zip(&cm)
+        .flat_map(|(g, c)| (0..3).map(move |k| (g[k] - c[k]).abs()))
+        .sum();
+    let total: f64 = cm.iter().flatten().map(|c| c.abs()).sum();
+    eprintln!("bias maps: rel_l1 {:.2e}", diff / total);
+    assert!(diff < 1e-3 * total, "bias maps differ: {}", diff / total);
 }
 
 /// Long BVH walks: fog-box's pure method at 128x128 with 100k light paths sends hundreds of

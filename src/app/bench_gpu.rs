@@ -131,7 +131,7 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
         let file = args.bench.load(scene)?;
         let s = args.bench.settings(&file)?;
         let tracer = Tracer::new(&file.scene, s.clone())?;
-        let Some(gpu) = super::open_device(args.device, None, true)? else {
+        let Some(gpu) = super::open_device(args.device, true)? else {
             anyhow::bail!("no GPU adapter to measure (try --device gpu)");
         };
         adapter = gpu.describe();

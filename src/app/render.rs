@@ -344,8 +344,7 @@ pub fn render(args: RenderArgs) -> Result<ExitCode> {
     } else {
         args.progress
     };
-    let bandwidth = args.over.bandwidth.unwrap_or(first.settings.bandwidth);
-    let gpu = super::open_device(args.machine.device, Some(bandwidth), args.quiet)?;
+    let gpu = super::open_device(args.machine.device, args.quiet)?;
     let interrupt = Interrupt::install()?;
     let goal = if args.time.is_some() || args.target_error.is_some() {
         Goal::Frames(jobs.len() as u32)

@@ -88,7 +88,7 @@ fn parse_checkpoint(s: &str) -> std::result::Result<Checkpoint, String> {
 pub fn watch(args: WatchArgs) -> Result<ExitCode> {
     super::set_threads(args.machine.threads)?;
     let out = super::output_path(&args.scene, args.output.as_ref())?;
-    let gpu = super::open_device(args.machine.device, args.over.bandwidth, false)?;
+    let gpu = super::open_device(args.machine.device, false)?;
     let (tx, rx) = mpsc::channel();
     let shared: SharedFrame = Arc::default();
     let mut ui = None;

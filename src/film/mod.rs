@@ -245,38 +245,32 @@ impl Film {
             .collect()
     }
 
-    /// The current estimate with `extra` (per-pixel sums over the same passes, the GPU's
-    /// beam accumulators) added.
-    pub fn image_plus(&self, extra: &Held) -> Vec<[f32; 3]> {
-        let inv = 1.0 / self.counts.passes.max(1) as f64;
-        self.image
-            .all
-            .iter()
-            .zip(extra[0].iter().zip(&extra[1]))
-            .map(|(s, (e, o))| {
-                [0, 1, 2].map(|c| ((float(s[c]) + e[c] as f64 + o[c] as f64) * inv) as f32)
-            })
-            .collect()
-    }
-
     /// Adds per-pixel sums kept outside the film (the GPU's, over the same passes) into
     /// it, once, so the film can be shown or stored.
     pub fn absorb(&mut self, extra: &Held) {
-        let [even, odd] = extra;
-        let pixels = self.image.all.iter_mut().zip(&mut self.image.odd);
-        for ((s, o), (e, d)) in pixels.zip(even.iter().zip(odd)) {
-            for c in 0..3 {
-                let (e, d) = (fixed(e[c]), fixed(d[c]));
-                s[c] += e + d;
-                o[c] += d;
-            }
+        let [even, odd] = &extra.halves;
+        let rgb = |p: &[f32]| Rgb::new(p[0], p[1], p[2]);
+        for (sums, at) in [(&mut self.image, 0), (&mut self.nested, 4)] {
+            let (e, o): (Vec<Rgb>, Vec<Rgb>) = even
+                .iter()
+                .zip(odd)
+                .map(|(e, o)| (rgb(&e[at..at + 3]), rgb(&o[at..at + 3])))
+                .unzip();
+            sums.add(false, &e);
+            sums.add(true, &o);
         }
+        self.counts.nested += extra.passes;
     }
 }
 
-/// Per-pixel sums kept outside the film (RGB and a count), of the even and of the odd
-/// passes.
-pub type Held = [Vec<[f32; 4]>; 2];
+/// Per-pixel sums kept outside the film (the GPU's), of the even and of the odd passes:
+/// the beam estimate's RGB and evaluation count, then the nested difference's RGB and a
+/// pad; and how many passes they hold.
+#[derive(Clone, Debug, Default)]
+pub struct Held {
+    pub halves: [Vec<[f32; 8]>; 2],
+    pub passes: u32,
+}
 
 impl Film {
     /// How many passes the odd or the even half holds.

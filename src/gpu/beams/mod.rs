@@ -57,6 +57,9 @@ pub const SHADER: &str = concat!(
 );
 
 const WORKGROUP: u32 = 64;
+/// A segment's result and a pixel's accumulator: the estimate's RGB and count, then the
+/// nested difference's RGB and a pad (two vec4).
+const PIXEL_SUM_BYTES: u64 = 32;
 /// BVH walk iterations per segment per round on software adapters, which end an
 /// invocation's loops after 65,535 iterations in all, its crossings' own loops included:
 /// walks were cut at 4,600-4,800 iterations where crossings were dense.
@@ -83,9 +86,9 @@ pub struct GpuBeams {
     trial: Option<[Option<f64>; 2]>,
     /// What rasterising needs, where it is possible and asked for.
     raster: Option<Raster>,
-    /// The rasterised primary sums `pixel_main` adds (a 1x1 texture it never reads when
-    /// primaries are gathered).
-    primary_sums: wgpu::TextureView,
+    /// The rasterised primary sums `pixel_main` adds, the estimate's and the nested
+    /// difference's (1x1 textures it never reads when primaries are gathered).
+    primary_sums: [wgpu::TextureView; 2],
     per_segment: wgpu::ComputePipeline,
     per_pixel: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
@@ -103,6 +106,8 @@ pub struct GpuBeams {
     accum: [wgpu::Buffer; 2],
     /// Whether the pass submitted last is odd (`PassPlan::odd`): the accumulator it adds to.
     odd: bool,
+    /// Passes estimated into the accumulators since they were cleared.
+    passes: u32,
     segments: Grow,
     pixel_first: Grow,
     seg_out: Grow,
@@ -135,8 +140,8 @@ impl GpuBeams {
             .map_err(|_| Error::Gpu("two pipelines".into()))?;
         let raster = (primary != PrimaryPath::Gather).then(|| Raster::new(dev, &module, camera));
         let primary_sums = match &raster {
-            Some(r) => r.target.clone(),
-            None => sums_texture(dev, 1, 1, false),
+            Some(r) => r.targets.clone(),
+            None => [0, 1].map(|_| sums_texture(dev, 1, 1, false)),
         };
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("beam_estimate.wgsl: {e}")));
@@ -159,8 +164,10 @@ impl GpuBeams {
         });
         let chunk_stride = uniform_stride::<Chunk>(&gpu);
         let chunk_buf = uniform_chunks(dev, 2 * chunk_stride);
-        let accum = ["even", "odd"]
-            .map(|k| read_write(dev, &format!("{k} passes' sums"), pixels as u64 * 16));
+        let accum = ["even", "odd"].map(|k| {
+            let label = format!("{k} passes' sums");
+            read_write(dev, &label, pixels as u64 * PIXEL_SUM_BYTES)
+        });
         let adapter = gpu.describe();
         Ok(GpuBeams {
             segments: Grow::new(dev, "segments"),
@@ -195,6 +202,7 @@ impl GpuBeams {
             walk_budget: params.walk_budget,
             accum,
             odd: false,
+            passes: 0,
             pixels,
             in_flight: None,
             stats: GpuStats {
@@ -244,6 +252,7 @@ impl GpuBeams {
     /// previous pass's timing (after waiting for it) if one was in flight.
     pub fn submit(&mut self, t: &TracedPass, media: &Media) -> Result<Option<GpuTiming>> {
         let prev = self.wait()?;
+        self.passes += 1;
         let start = Instant::now();
         let path = self.next_path();
         let raster = path == PrimaryPath::Raster;
@@ -323,7 +332,8 @@ impl GpuBeams {
                 + std::mem::size_of_val(pieces)
                 + quads as usize * std::mem::size_of::<BeamQuad>()) as u64;
         let n_segs = segs.segments.len() as u32;
-        self.seg_out.reserve(&self.gpu, n_segs as u64 * 16)?;
+        self.seg_out
+            .reserve(&self.gpu, n_segs as u64 * PIXEL_SUM_BYTES)?;
         self.walk_state.reserve(&self.gpu, n_segs as u64 * 8)?;
         Ok((n_segs, quads))
     }
@@ -427,10 +437,11 @@ impl GpuBeams {
         }))
     }
 
-    /// The accumulated beam radiance per pixel (sum over the submitted passes), after
-    /// waiting for the pass in flight.
+    /// The accumulated beam radiance per pixel (sum over the submitted passes; RGB and
+    /// the evaluation count), after waiting for the pass in flight.
     pub fn read(&mut self) -> Result<(Vec<[f32; 4]>, Option<GpuTiming>)> {
-        let ([even, odd], timing) = self.read_halves()?;
+        let (held, timing) = self.read_halves()?;
+        let [even, odd] = held.halves;
         let sum = even
             .iter()
             .zip(&odd)
@@ -439,21 +450,23 @@ impl GpuBeams {
         Ok((sum, timing))
     }
 
-    /// The accumulated sums of the even and of the odd passes, after waiting for the pass
-    /// in flight.
+    /// The accumulated sums of the even and of the odd passes, with the nested
+    /// difference's, after waiting for the pass in flight.
     pub fn read_halves(&mut self) -> Result<(Held, Option<GpuTiming>)> {
         let timing = self.wait()?;
-        let size = self.pixels as u64 * 16;
-        let mut halves: Held = [Vec::new(), Vec::new()];
+        let size = self.pixels as u64 * PIXEL_SUM_BYTES;
+        let mut halves: [Vec<[f32; 8]>; 2] = [Vec::new(), Vec::new()];
         for (half, buf) in halves.iter_mut().zip(&self.accum) {
             let enc = self.encoder();
             *half = read_back(&self.gpu, enc, buf, size, "the accumulator")?;
-            if half.iter().flatten().any(|&v| v < 0.0) {
+            // A cut walk marks the estimate (never negative) with LOOP_CUT.
+            if half.iter().any(|p| p[..4].iter().any(|&v| v < 0.0)) {
                 return Err(self.loop_cut());
             }
         }
         self.check()?;
-        Ok((halves, timing))
+        let passes = self.passes;
+        Ok((Held { halves, passes }, timing))
     }
 
     /// The error for sums the adapter's loop limit made wrong.
@@ -483,6 +496,7 @@ impl GpuBeams {
             enc.clear_buffer(buf, 0, None);
         }
         self.gpu.queue.submit([enc.finish()]);
+        self.passes = 0;
         self.check()
     }
 
@@ -513,7 +527,7 @@ impl GpuBeams {
             whole(&self.grid_buf),
             whole(&self.accum[usize::from(self.odd)]),
             whole(&self.seg_out.buf),
-            wgpu::BindingResource::TextureView(&self.primary_sums),
+            wgpu::BindingResource::TextureView(&self.primary_sums[0]),
         ];
         let entries: Vec<(u32, wgpu::BindingResource)> = resources
             .into_iter()
@@ -524,6 +538,10 @@ impl GpuBeams {
                 (14, whole(&self.octrees)),
                 (15, whole(&self.walk_state.buf)),
                 (16, whole(&self.unfinished)),
+                (
+                    17,
+                    wgpu::BindingResource::TextureView(&self.primary_sums[1]),
+                ),
             ])
             .collect();
         bind_group(&self.gpu.device, &self.layout, &entries)
@@ -556,7 +574,12 @@ impl Estimator for GpuBeams {
     fn held(&mut self) -> Result<Option<Held>> {
         let (acc, timing) = self.read_halves()?;
         self.stats.record(timing, None);
-        let evals = acc.iter().flatten().map(|a| a[3] as f64).sum::<f64>();
+        let evals = acc
+            .halves
+            .iter()
+            .flatten()
+            .map(|a| a[3] as f64)
+            .sum::<f64>();
         self.stats.beam_evaluations = evals as u64;
         Ok(Some(acc))
     }
@@ -625,7 +648,7 @@ fn uniform_chunks(dev: &wgpu::Device, size: u64) -> wgpu::Buffer {
     })
 }
 
-/// Bindings 0-10, 13 and 14 of `beam_estimate.wgsl` for the kernels; the chunk uniform
+/// Bindings 0-10 and 13-17 of `beam_estimate.wgsl` for the kernels; the chunk uniform
 /// (1) takes a dynamic offset.
 fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
     let entry =
@@ -646,8 +669,8 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         entry(15, READ_WRITE, false),
         entry(16, READ_WRITE, false),
     ];
-    let sums = wgpu::BindGroupLayoutEntry {
-        binding: 10,
+    let sums = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
         visibility: wgpu::ShaderStages::COMPUTE,
         ty: wgpu::BindingType::Texture {
             sample_type: wgpu::TextureSampleType::Float { filterable: false },
@@ -656,7 +679,7 @@ fn bind_group_layout(dev: &wgpu::Device) -> wgpu::BindGroupLayout {
         },
         count: None,
     };
-    let entries: Vec<_> = entries.into_iter().chain([sums]).collect();
+    let entries: Vec<_> = entries.into_iter().chain([sums(10), sums(17)]).collect();
     dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("beam estimate"),
         entries: &entries,

@@ -1,6 +1,7 @@
 //! Primary segments rasterised as beam quads (the original PPB's way): each beam a film
 //! rectangle, a fragment per covered pixel evaluating eq. 2 for that pixel's primary
-//! segment into an additively blended float32 target.
+//! segment into an additively blended float32 target, and its nested half-radius
+//! difference into a second one.
 use rayon::prelude::*;
 
 use super::GpuBeams;
@@ -15,7 +16,8 @@ use crate::transport::camera::Pinhole;
 pub(super) struct Raster {
     pub(super) pipeline: wgpu::RenderPipeline,
     pub(super) layout: wgpu::BindGroupLayout,
-    pub(super) target: wgpu::TextureView,
+    /// The estimate's and the nested difference's targets.
+    pub(super) targets: [wgpu::TextureView; 2],
     pub(super) primaries: Grow,
     pub(super) quads: Grow,
     /// [`reach_per_radius`] of the camera.
@@ -100,14 +102,16 @@ pub(super) fn quad_pipeline(
             module,
             entry_point: Some("quad_fs"),
             compilation_options: Default::default(),
-            targets: &[Some(wgpu::ColorTargetState {
-                format: wgpu::TextureFormat::Rgba32Float,
-                blend: Some(wgpu::BlendState {
-                    color: add,
-                    alpha: add,
-                }),
-                write_mask: wgpu::ColorWrites::ALL,
-            })],
+            targets: &[0, 1].map(|_| {
+                Some(wgpu::ColorTargetState {
+                    format: wgpu::TextureFormat::Rgba32Float,
+                    blend: Some(wgpu::BlendState {
+                        color: add,
+                        alpha: add,
+                    }),
+                    write_mask: wgpu::ColorWrites::ALL,
+                })
+            }),
         }),
         multiview_mask: None,
         cache: None,
@@ -120,7 +124,7 @@ impl Raster {
         Raster {
             pipeline: quad_pipeline(dev, module, &layout),
             layout,
-            target: sums_texture(dev, camera.width(), camera.height(), true),
+            targets: [0, 1].map(|_| sums_texture(dev, camera.width(), camera.height(), true)),
             primaries: Grow::new(dev, "primary segments"),
             quads: Grow::new(dev, "beam quads"),
             reach: reach_per_radius(camera),
@@ -152,7 +156,7 @@ impl GpuBeams {
         Ok(quads.len() as u32)
     }
 
-    /// Draws `count` beam quads into the cleared primary target.
+    /// Draws `count` beam quads into the cleared primary targets.
     pub(super) fn draw_quads(&self, r: &Raster, enc: &mut wgpu::CommandEncoder, count: u32) {
         let bind = bind_group(
             &self.gpu.device,
@@ -169,15 +173,17 @@ impl GpuBeams {
         );
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("beam quads"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &r.target,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
+            color_attachments: &r.targets.each_ref().map(|view| {
+                Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })
+            }),
             depth_stencil_attachment: None,
             timestamp_writes: None,
             occlusion_query_set: None,
