@@ -481,6 +481,7 @@ mod tests {
                 .unzip();
             film.add_pass(i % 2 == 1, &x);
             film.add_nested(i % 2 == 1, &d);
+            film.count_nested();
         }
         film
     }

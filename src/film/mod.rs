@@ -203,9 +203,14 @@ impl Film {
         self.counts.odd += u32::from(odd);
     }
 
-    /// Adds the current pass's nested half-radius difference (once per pass) and counts it.
+    /// Adds to the current pass's nested half-radius difference (photons and beams add
+    /// theirs).
     pub fn add_nested(&mut self, odd: bool, d: &[Rgb]) {
         self.nested.add(odd, d);
+    }
+
+    /// Counts the current pass's nested sums as complete (its beams' are in).
+    pub fn count_nested(&mut self) {
         self.counts.nested += 1;
     }
 
