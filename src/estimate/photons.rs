@@ -133,23 +133,28 @@ mod tests {
 
     /// Uniform photons of total power P on a plane of area A give irradiance P/A, so
     /// radiance rho/pi * P/A; the box-kernel estimate is unbiased away from the edges.
-    #[test]
-    fn uniform_irradiance_estimate() {
-        let mut rng = Rng::new(3, 3);
-        let n = 400_000;
-        let side = 4.0f32;
-        let total = 10.0f32;
-        let photons: Vec<Photon> = (0..n)
-            .map(|_| {
+    /// `n` photons of total power `total`, uniform over the `side` x `side` square of the
+    /// plane y = 0 (stream `seed`); every other one smooth when `split`.
+    fn uniform_photons(seed: u64, n: usize, side: f32, total: f32, split: bool) -> Vec<Photon> {
+        let mut rng = Rng::new(seed, 3);
+        (0..n)
+            .map(|i| {
                 let u = rng.vec2() * side;
+                let p = Vec3::new(u.x, 0.0, u.y);
                 Photon::new(
-                    Vec3::new(u.x, 0.0, u.y),
+                    p,
                     Vec3::Y,
                     Vec3::splat(total / n as f32),
-                    false,
+                    split && i % 2 == 0,
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn uniform_irradiance_estimate() {
+        let (n, side, total) = (400_000, 4.0f32, 10.0f32);
+        let photons = uniform_photons(3, n, side, total, false);
         let r = 0.1;
         let map = PhotonMap::build(&photons, r);
         let rho = Vec3::splat(0.5);
@@ -182,19 +187,8 @@ mod tests {
     /// r one's 3.6 %, its disc holding a quarter of the photons).
     #[test]
     fn nested_difference_of_the_photon_kernel() {
-        let mut rng = Rng::new(4, 3);
         let (n, side, total, r) = (400_000, 4.0f32, 10.0f32, 0.1f32);
-        let photons: Vec<Photon> = (0..n)
-            .map(|_| {
-                let u = rng.vec2() * side;
-                Photon::new(
-                    Vec3::new(u.x, 0.0, u.y),
-                    Vec3::Y,
-                    Vec3::splat(total / n as f32),
-                    false,
-                )
-            })
-            .collect();
+        let photons = uniform_photons(4, n, side, total, false);
         let rho = Vec3::splat(0.5);
         let expect = 0.5 / std::f32::consts::PI * total / (side * side);
         let even = PhotonMap::build(&photons, r);
@@ -225,15 +219,8 @@ mod tests {
     /// bound as above, for the 4x smaller photon count of the sharp half's disc).
     #[test]
     fn split_maps_add_up() {
-        let mut rng = Rng::new(5, 3);
         let (n, side, total) = (400_000, 4.0f32, 10.0f32);
-        let photons: Vec<Photon> = (0..n)
-            .map(|i| {
-                let u = rng.vec2() * side;
-                let p = Vec3::new(u.x, 0.0, u.y);
-                Photon::new(p, Vec3::Y, Vec3::splat(total / n as f32), i % 2 == 0)
-            })
-            .collect();
+        let photons = uniform_photons(5, n, side, total, true);
         let maps = Photons::build(&photons, 0.1, 0.3);
         let expect = 0.5 / std::f32::consts::PI * total / (side * side);
         let mut lookups = 0;
