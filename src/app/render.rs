@@ -757,7 +757,10 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
             let mut exr = meta.exr(s.passes(), seconds);
             let film = s.film()?;
             super::set_error_estimate(&mut exr, &film, meta.settings.bandwidth);
-            let layer = match film.error_map().filter(|_| meta.args.error_layer) {
+            let layer = match film
+                .error_map(meta.settings.bandwidth)
+                .filter(|_| meta.args.error_layer)
+            {
                 Some(map) => error_channels(&map),
                 None => Vec::new(),
             };

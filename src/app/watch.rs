@@ -625,7 +625,7 @@ impl Worker {
             None => String::new(),
         };
         let estimate = match self.status.estimate {
-            Some(e) => format!(" | noise ~{:.2} %", e * 100.0),
+            Some(e) => format!(" | error ~{:.2} %", e * 100.0),
             None => String::new(),
         };
         let line = format!(

@@ -193,13 +193,11 @@ impl Film {
             .collect()
     }
 
-    /// The expected rel_l1 of the image `bandwidth` resolves from the converged
-    /// radiance, per pixel and on 4x4 block means; None until each half-film holds
-    /// [`MIN_HALF_PASSES`] passes.
-    pub fn error_estimate(&self, bandwidth: Bandwidth) -> Option<ErrorEstimate> {
+    /// The image `bandwidth` resolves, per pixel: its mean, its noise deviation, and its
+    /// signed bias estimate with that estimate's own noise deviation (where the film has
+    /// nested sums).
+    fn parts(&self, bandwidth: Bandwidth) -> Option<Parts> {
         let Resolved { x, d, lambda } = self.resolve(bandwidth)?;
-        let (w, h) = (self.width as usize, self.height as usize);
-        // The resolved image's mean and noise, and its bias and that estimate's noise.
         let mix = |a: &Pixels, b: Option<&Pixels>| -> Pixels {
             a.iter()
                 .enumerate()
@@ -209,17 +207,25 @@ impl Film {
                 })
                 .collect()
         };
-        let mean = mix(&x.mean, d.as_ref().map(|d| &d.mean));
-        let noise = mix(&x.dev, d.as_ref().map(|d| &d.dev));
-        let bias = d.as_ref().map(|d| {
-            let scale = |v: &Pixels| -> Pixels {
-                v.iter()
-                    .zip(&lambda)
-                    .map(|(p, l)| p.map(|c| -(BIAS_PER_D - l) * c))
-                    .collect()
-            };
-            (scale(&d.mean), scale(&d.dev))
-        });
+        let scale = |v: &Pixels| -> Pixels {
+            v.iter()
+                .zip(&lambda)
+                .map(|(p, l)| p.map(|c| -(BIAS_PER_D - l) * c))
+                .collect()
+        };
+        Some(Parts {
+            mean: mix(&x.mean, d.as_ref().map(|d| &d.mean)),
+            noise: mix(&x.dev, d.as_ref().map(|d| &d.dev)),
+            bias: d.as_ref().map(|d| (scale(&d.mean), scale(&d.dev))),
+        })
+    }
+
+    /// The expected rel_l1 of the image `bandwidth` resolves from the converged
+    /// radiance, per pixel and on 4x4 block means; None until each half-film holds
+    /// [`MIN_HALF_PASSES`] passes.
+    pub fn error_estimate(&self, bandwidth: Bandwidth) -> Option<ErrorEstimate> {
+        let Parts { mean, noise, bias } = self.parts(bandwidth)?;
+        let (w, h) = (self.width as usize, self.height as usize);
         let rel = |err: f64, m: &Pixels| {
             let total = l1(m);
             if total > 0.0 {
@@ -237,16 +243,7 @@ impl Film {
             ),
             None => (None, None),
         };
-        let total = |noise: &Pixels, bias: &Option<Pixels>| -> f64 {
-            match bias {
-                Some(b) => noise
-                    .iter()
-                    .zip(b)
-                    .map(|(n, b)| (0..3).map(|c| n[c].hypot(b[c])).sum::<f64>())
-                    .sum(),
-                None => l1(noise),
-            }
-        };
+        let total = |noise: &Pixels, bias: &Option<Pixels>| l1(&together(noise, bias.as_ref()));
         let (block_mean, block_noise) = (block(&mean), block(&noise));
         Some(ErrorEstimate {
             pixel: rel(total(&noise, &pixel_bias), &mean),
@@ -271,20 +268,37 @@ impl Film {
         Some(d.mean.iter().map(|v| v.map(|c| -BIAS_PER_D * c)).collect())
     }
 
-    /// Each pixel's expected absolute noise per channel (radiance units) in the fixed
-    /// image: the half-films' scaled difference, its absolute value averaged over the 3x3
-    /// pixels around (one pixel's difference alone is a single draw); None as for
-    /// [`Film::error_estimate`].
-    pub fn error_map(&self) -> Option<Vec<[f32; 3]>> {
-        let dev = self.moments(false)?.dev;
+    /// Each pixel's expected absolute error per channel (radiance units) in the image
+    /// `bandwidth` resolves: its noise (the half-films' scaled difference, its absolute
+    /// value averaged over the 3x3 pixels around, one pixel's difference being a single
+    /// draw) and its bias size together; None as for [`Film::error_estimate`].
+    pub fn error_map(&self, bandwidth: Bandwidth) -> Option<Vec<[f32; 3]>> {
+        let Parts { noise, bias, .. } = self.parts(bandwidth)?;
         let (w, h) = (self.width as usize, self.height as usize);
-        let abs: Pixels = dev.iter().map(|d| d.map(f64::abs)).collect();
-        Some(
-            window_mean(&abs, w, h, 1)
-                .iter()
-                .map(|v| v.map(|c| c as f32))
-                .collect(),
-        )
+        let abs: Pixels = noise.iter().map(|d| d.map(f64::abs)).collect();
+        let sizes = bias.map(|(b, db)| bias_sizes(&b, &db, (w, h), PIXEL_WINDOW));
+        let map = together(&window_mean(&abs, w, h, 1), sizes.as_ref());
+        Some(map.iter().map(|v| v.map(|c| c as f32)).collect())
+    }
+}
+
+/// The parts of a resolved image's error (`Film::parts`).
+struct Parts {
+    mean: Pixels,
+    noise: Pixels,
+    bias: Option<(Pixels, Pixels)>,
+}
+
+/// Noise and bias sizes per pixel and channel as one expected error, sqrt(n^2 + b^2)
+/// (exact for either alone; for Gaussian noise E|b + N| is at most 9 % below it).
+fn together(noise: &Pixels, bias: Option<&Pixels>) -> Pixels {
+    match bias {
+        Some(b) => noise
+            .iter()
+            .zip(b)
+            .map(|(n, b)| [0, 1, 2].map(|c| n[c].hypot(b[c])))
+            .collect(),
+        None => noise.clone(),
     }
 }
 
@@ -535,7 +549,7 @@ mod tests {
             .is_none());
         let f = film(4, 1.0, 0.0, 0.1);
         assert!(f.error_estimate(Bandwidth::Fixed).is_some());
-        let map = f.error_map().unwrap();
+        let map = f.error_map(Bandwidth::Fixed).unwrap();
         assert_eq!(map.len(), 64 * 64);
         let mean = map.iter().flatten().map(|&v| f64::from(v)).sum::<f64>() / (3.0 * 4096.0);
         let want = expected(0.1, 4, 1.0);
