@@ -38,7 +38,6 @@ impl Estimator for CpuBeams {
         let (l, d): (Vec<Rgb>, Vec<Rgb>) = img.iter().map(|n| (n.l, n.d)).unzip();
         film.add(t.odd, &l);
         film.add_nested(t.odd, &d);
-        film.count_nested();
         Ok(evals)
     }
 

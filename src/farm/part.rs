@@ -332,7 +332,6 @@ mod tests {
         for i in range.0..range.1 {
             film.add_pass(i % 2 == 0, &[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
             film.add_nested(i % 2 == 0, &[Vec3::splat(-0.01 * i as f32), Vec3::ZERO]);
-            film.count_nested();
         }
         let path = dir.join(format!("p{}-{}.ppbpart", range.0, range.1));
         let h = PartHeader {

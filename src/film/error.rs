@@ -329,17 +329,47 @@ fn window_mean(v: &[[f64; 3]], w: usize, h: usize, k: usize) -> Pixels {
     out
 }
 
+/// The spread of a window mean of b^2 - db^2 under pure noise, per unit of db^2, at each
+/// pixel: 2 / sqrt(m) for Gaussian noise over m independent pixels. A kernel's noise is
+/// shared by the pixels it covers (a smooth photon map's over many), so m is the window's
+/// effective count, wm'(db^2) / wm'(wm(db)^2) (wm: the window mean, wm' one 3 times as
+/// wide: db's own window means show how much of its noise the window averages away),
+/// within 1 and the window's pixels.
+fn window_spread(db: &Pixels, w: usize, h: usize, k: usize) -> Vec<f64> {
+    let sq = |v: &Pixels| -> Pixels {
+        v.iter()
+            .map(|p| [p.iter().map(|c| c * c).sum(), 0.0, 0.0])
+            .collect()
+    };
+    let wide = 3 * k + 1;
+    let all = window_mean(&sq(db), w, h, wide);
+    let kept = window_mean(&sq(&window_mean(db, w, h, k)), w, h, wide);
+    let count = ((2 * k + 1) * (2 * k + 1)) as f64;
+    all.iter()
+        .zip(&kept)
+        .map(|(a, s)| {
+            let m = if s[0] > 0.0 {
+                (a[0] / s[0]).clamp(1.0, count)
+            } else {
+                count
+            };
+            2.0 / m.sqrt()
+        })
+        .collect()
+}
+
 /// How large a signed bias estimate `b` (with its noise deviation `db`) is per pixel:
 /// sqrt of the window mean of b^2 - db^2 (the estimate's own noise removed), less that
-/// mean's own spread (about 2 db^2 / sqrt(window pixels) for Gaussian noise, so that
-/// pure noise rarely reads as bias), clipped at zero.
+/// mean's own spread ([`window_spread`], so that pure noise rarely reads as bias),
+/// clipped at zero.
 fn bias_sizes(b: &Pixels, db: &Pixels, (w, h): (usize, usize), k: usize) -> Pixels {
     let sq = |v: &Pixels| -> Pixels { v.iter().map(|p| p.map(|c| c * c)).collect() };
     let (b2, db2) = (window_mean(&sq(b), w, h, k), window_mean(&sq(db), w, h, k));
-    let spread = 2.0 / ((2 * k + 1) as f64);
+    let spread = window_spread(db, w, h, k);
     b2.iter()
         .zip(&db2)
-        .map(|(s, n)| [0, 1, 2].map(|c| (s[c] - n[c] - spread * n[c]).max(0.0).sqrt()))
+        .zip(&spread)
+        .map(|((s, n), sp)| [0, 1, 2].map(|c| (s[c] - n[c] - sp * n[c]).max(0.0).sqrt()))
         .collect()
 }
 
@@ -358,12 +388,12 @@ fn lambdas(d: &Moments, w: usize, h: usize) -> Vec<f64> {
     let e2 = per_pixel(&|i, c| d.mean[i][c].powi(2) - d.dev[i][c].powi(2));
     let vd = per_pixel(&|i, c| d.dev[i][c].powi(2));
     let k = PIXEL_WINDOW;
-    let spread = NARROW_SPREADS * 2.0 / ((2 * k + 1) as f64);
+    let spread = window_spread(&d.dev, w, h, k);
     let (e2, vd) = (window_mean(&e2, w, h, k), window_mean(&vd, w, h, k));
     (0..w * h)
         .map(|i| {
             let v = vd[i][0];
-            let e = (e2[i][0] - spread * v).max(0.0);
+            let e = (e2[i][0] - NARROW_SPREADS * spread[i] * v).max(0.0);
             if e + v <= 0.0 {
                 return 0.0;
             }
@@ -495,7 +525,6 @@ mod tests {
                 .unzip();
             film.add_pass(i % 2 == 1, &x);
             film.add_nested(i % 2 == 1, &d);
-            film.count_nested();
         }
         film
     }

@@ -203,14 +203,9 @@ impl Film {
         self.counts.odd += u32::from(odd);
     }
 
-    /// Adds to the current pass's nested half-radius difference (photons and beams add
-    /// theirs).
+    /// Adds the current pass's nested half-radius difference (once per pass) and counts it.
     pub fn add_nested(&mut self, odd: bool, d: &[Rgb]) {
         self.nested.add(odd, d);
-    }
-
-    /// Counts the current pass's nested sums as complete (its beams' are in).
-    pub fn count_nested(&mut self) {
         self.counts.nested += 1;
     }
 

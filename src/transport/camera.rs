@@ -15,7 +15,7 @@ use super::SurfaceEstimate;
 use super::{timed, Counters};
 use crate::bsdf;
 use crate::core::Ray;
-use crate::core::{Nested, Rgb};
+use crate::core::Rgb;
 use crate::geometry::{Geometry, Hit, Surface, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
@@ -33,8 +33,6 @@ struct Out<'a> {
     pixel: u32,
     segments: &'a mut Vec<Secondary>,
     alpha: f32,
-    /// The photon estimates' nested half-radius difference, weighted like their radiance.
-    nested: Rgb,
 }
 
 #[derive(Clone, Copy)]
@@ -189,8 +187,6 @@ pub struct Secondary {
 pub struct CameraPass {
     /// Radiance of every pixel except the beam estimate (emitters, photons).
     pub image: Vec<Rgb>,
-    /// The photon estimates' nested half-radius difference per pixel.
-    pub nested: Vec<Rgb>,
     /// Alpha of every pixel with a transparent film (else empty).
     pub alpha: Vec<f32>,
     /// One per pixel, row-major.
@@ -259,7 +255,7 @@ impl CameraTracer<'_> {
             None => (None, Vec::new()),
         };
         rows_mut.resize_with(h, || None);
-        type Row = (Vec<(Rgb, Primary, f32, Rgb)>, Vec<Secondary>, Counters);
+        type Row = (Vec<(Rgb, Primary, f32)>, Vec<Secondary>, Counters);
         let rows: Vec<Row> = rows_mut
             .into_par_iter()
             .enumerate()
@@ -292,10 +288,9 @@ impl CameraTracer<'_> {
                             pixel: idx as u32,
                             segments: &mut secondary,
                             alpha: 1.0,
-                            nested: Rgb::ZERO,
                         };
                         let (l, p) = self.radiance(ray, &mut rng, &mut c, strat, &mut out);
-                        (l, p, out.alpha, out.nested)
+                        (l, p, out.alpha)
                     })
                     .collect();
                 (row, secondary, c)
@@ -303,16 +298,14 @@ impl CameraTracer<'_> {
             .collect();
         let mut pass = CameraPass {
             image: Vec::with_capacity(w * h),
-            nested: Vec::with_capacity(w * h),
             alpha: Vec::new(),
             primaries: Vec::with_capacity(w * h),
             secondary: Vec::new(),
             counters: Counters::default(),
         };
         for (row, secondary, c) in rows {
-            for (l, p, a, d) in row {
+            for (l, p, a) in row {
                 pass.image.push(l);
-                pass.nested.push(d);
                 pass.primaries.push(p);
                 if self.transparent {
                     pass.alpha.push(a);
@@ -386,9 +379,7 @@ impl CameraTracer<'_> {
                 Surface::Material(m) => m,
             };
             if let Material::Lambert { reflectance } = material {
-                let lo = st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
-                l += lo.l;
-                out.nested += lo.d;
+                l += st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
                 break;
             }
             st.depth += 1;
@@ -457,8 +448,8 @@ impl CameraTracer<'_> {
         l
     }
 
-    /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate (with
-    /// its nested difference) plus, in the hybrid method, direct light by a shadow ray.
+    /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate plus,
+    /// in the hybrid method, direct light by a shadow ray.
     fn diffuse(
         &self,
         h: &Hit,
@@ -466,13 +457,13 @@ impl CameraTracer<'_> {
         reflectance: Rgb,
         rng: &mut Rng,
         c: &mut Counters,
-    ) -> Nested {
+    ) -> Rgb {
         let n = if dir.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
         let mut lo = self
             .photons
             .radiance(h.p, n, reflectance, &mut c.photon_lookups);
         if let Some(d) = &self.direct {
-            lo.l += d.at_surface(h.p, n, reflectance, rng, c);
+            lo += d.at_surface(h.p, n, reflectance, rng, c);
         }
         lo
     }
