@@ -15,13 +15,13 @@
 //!
 //! **Bias.** A kernel estimate's expectation is the radiance blurred by the kernel:
 //! L + c r^p + ..., with p = 2 where the radiance is smooth (the second derivatives of
-//! Hachisuka et al.'s bias term) and p = 1 at a medium's face, where the kernel's tube
-//! around a camera segment leaves the medium. Every kernel evaluation also counts at r/2
-//! (`estimate::eq2::Nested`), so the film holds D, the mean of (estimate at r/2 - estimate
+//! Hachisuka et al.'s bias term) and p = 1 at a step (a medium's silhouette). Every beam
+//! kernel evaluation also counts at r/2 (`estimate::eq2::Nested`), so the film holds D, the mean of (estimate at r/2 - estimate
 //! at r), with E[D] = -(1 - 2^-p) bias. The signed bias is estimated as -[`BIAS_PER_D`] D:
 //! exact for p = 1.5, within 0.77-1.16 of the truth from p = 2 to p = 1. Its size per
 //! pixel, sqrt(D^2 - var D) averaged over a window (D's own noise removed, the rest
-//! clipped at zero), enters the expected error as sqrt(bias^2 + noise^2).
+//! clipped at zero), enters the expected error as sqrt(bias^2 + noise^2). The surface
+//! photons' kernels are not nested (docs/error-estimate.md says why).
 //!
 //! **Adaptive bandwidth** (Kaplanyan and Dachsbacher 2013 choose each point's radius by
 //! the same balance): the adaptive image is X + lambda D per pixel, the estimate of a
@@ -46,7 +46,7 @@ pub const BIAS_PER_D: f64 = 1.547_005_383_792_515;
 /// How many of its own spreads the windowed bias must stand above zero before lambda
 /// narrows the kernel (the size estimate subtracts one): at 1, pure noise narrowed it in
 /// about 5 % of cloud-hg's pixels and raised its per-pixel error by 3 % at 300 passes; at
-/// 3, by 0.9 %, while fog-box's faces kept most of their gain (docs/error-estimate.md).
+/// 3, by under 1 %, while fog-box's faces kept their gain (docs/error-estimate.md).
 const NARROW_SPREADS: f64 = 3.0;
 
 /// Half-widths of the windows the bias moments are averaged over: 5x5 pixels, 3x3 blocks.
@@ -74,8 +74,7 @@ pub struct ErrorEstimate {
     pub block: f64,
     /// The noise alone: the expected rel_l1 from the image's own mean.
     pub noise: Rel,
-    /// The kernel's bias alone; None where the beams were estimated without nested sums
-    /// (on the GPU).
+    /// The beam kernel's bias alone; None where some pass's estimate kept no nested sums.
     pub bias: Option<Rel>,
     /// Passes it was estimated from.
     pub passes: u32,

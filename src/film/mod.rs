@@ -73,8 +73,8 @@ impl Halves {
     }
 }
 
-/// How many passes a film holds: all, the odd ones, and those whose estimate added the
-/// nested sums (all of them on the CPU; none where the GPU estimated the beams).
+/// How many passes a film holds: all, the odd ones, and those whose beam estimate added
+/// the nested sums (counted when the CPU adds them, or when the GPU's are absorbed).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counts {
     pub passes: u32,
