@@ -11,20 +11,14 @@ after `cargo build --release`:
 import argparse
 import json
 import os
-import re
 import subprocess
+import sys
 import tempfile
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from radius_split import ROOT, compare  # noqa: E402
+
 SCENES = "fog-box,smoke-grid,cloud-hg,glass-caustic,cloud-sky,fog-near-light"
-
-
-def compare(ppb, img, scene):
-    ref = os.path.join(ROOT, "tests/data/conformance", scene, "reference.exr")
-    out = subprocess.run([ppb, "compare", img, ref, "--block", "4"],
-                         capture_output=True, text=True, check=True).stdout
-    return (float(re.search(r"^rel_l1\s+([\d.e-]+)", out, re.M).group(1)),
-            float(re.search(r"block means\s+([\d.e-]+)", out).group(1)))
 
 
 def main():
