@@ -4,7 +4,8 @@ For each public scene and target, `ppb render --target-error E` (per pixel, or o
 means where the scene's reference is judged there) renders until its own estimate falls
 below E; the image is then compared with the reference (`ppb compare`). Printed per run:
 passes, seconds, the estimate when it stopped, the measured rel_l1 raw and net of the
-reference's own noise (reference.json; net = sqrt(err^2 - noise^2)), and net / target. The
+reference's own noise (reference.json; net = sqrt(err^2 - noise^2); for fog-near-light
+without the light's pixels, see SCENES), and net / target. The
 estimate, like the target, is over the whole image. Where the scene has an emitter mask
 (a light seen directly: it dominates the image's sum, and its pixels are judged apart by
 the conformance tests) the last two columns are, with those pixels left out, the measured
@@ -24,14 +25,17 @@ import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED = os.path.join(os.path.dirname(ROOT), "shared", "conformance")
-# Scene, metric the target applies to (glass-caustic's reference is judged on blocks).
+# Scene, metric the target applies to (glass-caustic's reference is judged on blocks), and
+# whether "net" leaves the emitter mask out: fog-near-light's reference is 9 % too bright
+# in the light's own pixels (docs/conformance.md), and its per-pixel noise is the target's.
 SCENES = [
-    ("fog-box", "pixel"),
-    ("smoke-grid", "pixel"),
-    ("cloud-hg", "pixel"),
-    ("fog-near-light", "pixel"),
-    ("glass-caustic", "blocks"),
-    ("cloud-sky", "pixel"),
+    ("fog-box", "pixel", False),
+    ("smoke-grid", "pixel", False),
+    ("cloud-hg", "pixel", False),
+    ("fog-near-light", "pixel", True),
+    ("fog-near-light", "blocks", True),
+    ("glass-caustic", "blocks", False),
+    ("cloud-sky", "pixel", False),
 ]
 
 
@@ -81,14 +85,14 @@ def masked_estimate(exr, scene):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--targets", default="0.02,0.01")
-    ap.add_argument("--scenes", default=",".join(s for s, _ in SCENES))
+    ap.add_argument("--scenes", default=",".join(dict.fromkeys(s for s, _, _ in SCENES)))
     ap.add_argument("--ppb", default=os.path.join(ROOT, "target/release/ppb"))
     a = ap.parse_args()
     wanted = a.scenes.split(",")
     print(f"{'scene':<15} {'on':<6} {'target':>7} {'passes':>6} {'s':>6} {'estimate':>9} "
           f"{'measured':>9} {'net':>7} {'net/target':>10} {'masked':>10} {'masked est':>10}")
     with tempfile.TemporaryDirectory() as tmp:
-        for scene, on in SCENES:
+        for scene, on, judge_masked in SCENES:
             if scene not in wanted:
                 continue
             noise = reference_noise(scene)
@@ -103,7 +107,8 @@ def main():
                 k = 0 if on == "pixel" else 1
                 measured = compare(a.ppb, out, scene)[k]
                 masked = compare(a.ppb, out, scene, masked=True)
-                net = math.sqrt(max(measured ** 2 - noise[k] ** 2, 0.0))
+                judged = masked[k] if judge_masked else measured
+                net = math.sqrt(max(judged ** 2 - noise[k] ** 2, 0.0))
                 m, me = "-", "-"
                 if masked is not None:
                     m = f"{masked[k]:.4f}"

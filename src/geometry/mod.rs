@@ -1,4 +1,6 @@
-//! Surfaces: triangle meshes in an obvhs BVH, plus analytic spheres for sphere lights.
+//! Surfaces: triangle meshes in an obvhs BVH. Sphere lights are analytic spheres seen by
+//! rays but not surfaces: they neither block nor reflect light (the conformance SPEC, and
+//! Mitsuba's emitter sphere with a `null` BSDF), so the fog behind a light shows through it.
 use glam::{Vec3, Vec3A};
 use obvhs::{bvh2::builder::build_bvh2_from_tris, bvh2::Bvh2, ray::RayHit, triangle::Triangle};
 use std::time::Duration;
@@ -6,14 +8,6 @@ use std::time::Duration;
 use crate::core::{Ray, Rgb};
 use crate::error::{Error, Result};
 use crate::scene::{Light, Material, Scene};
-
-/// What a ray hit.
-#[derive(Clone, Copy, Debug)]
-pub enum Surface {
-    Material(Material),
-    /// A sphere light: opaque, black, emitting this radiance outward.
-    Emitter(Rgb),
-}
 
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
@@ -23,7 +17,7 @@ pub struct Hit {
     pub ng: Vec3,
     /// Interpolated shading normal, on the same side as `ng`.
     pub ns: Vec3,
-    pub surface: Surface,
+    pub material: Material,
 }
 
 struct TriInfo {
@@ -147,36 +141,41 @@ impl Geometry {
         b
     }
 
-    /// Closest hit in (EPS-free) range (0, tmax).
+    /// Closest surface hit in (EPS-free) range (0, tmax); sphere lights are not surfaces.
     pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        let mut tmax = tmax;
-        if let Some(bvh) = &self.bvh {
-            let r = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), 0.0, tmax);
-            let mut hit = RayHit::none();
-            if bvh.ray_traverse(r, &mut hit, |r, id| {
-                self.tris[bvh.primitive_indices[id] as usize].intersect(r)
-            }) {
-                let id = bvh.primitive_indices[hit.primitive_id as usize] as usize;
-                tmax = hit.t;
-                best = Some(self.triangle_hit(ray, id, hit.t));
+        let bvh = self.bvh.as_ref()?;
+        let r = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), 0.0, tmax);
+        let mut hit = RayHit::none();
+        bvh.ray_traverse(r, &mut hit, |r, id| {
+            self.tris[bvh.primitive_indices[id] as usize].intersect(r)
+        })
+        .then(|| {
+            let id = bvh.primitive_indices[hit.primitive_id as usize] as usize;
+            self.triangle_hit(ray, id, hit.t)
+        })
+    }
+
+    /// Whether a ray within `margin` radians of `ray` could meet a sphere light.
+    pub fn lights_near(&self, ray: &Ray, margin: f32) -> bool {
+        self.spheres.iter().any(|s| {
+            let v = s.center - ray.o;
+            let d = v.length();
+            d <= s.radius || {
+                let half = (s.radius / d).asin() + margin;
+                half >= std::f32::consts::PI || v.dot(ray.d) / d >= half.cos()
             }
-        }
-        for s in &self.spheres {
-            if let Some(t) = sphere_hit(ray, s.center, s.radius, tmax) {
-                tmax = t;
-                let p = ray.at(t);
-                let n = (p - s.center).normalize();
-                best = Some(Hit {
-                    t,
-                    p,
-                    ng: n,
-                    ns: n,
-                    surface: Surface::Emitter(s.radiance),
-                });
-            }
-        }
-        best
+        })
+    }
+
+    /// The sphere lights `ray` enters in (EPS, tmax), with the radiance each shows there:
+    /// where it enters, the sphere's outward face looks back along the ray. A ray leaving
+    /// a sphere from inside sees nothing of it (emission is outward only).
+    pub fn lights_seen(&self, ray: &Ray, tmax: f32) -> impl Iterator<Item = (f32, Rgb)> + '_ {
+        let ray = *ray;
+        self.spheres.iter().filter_map(move |s| {
+            let t = sphere_entry(&ray, s.center, s.radius)?;
+            (t > EPS && t < tmax).then_some((t, s.radiance))
+        })
     }
 
     fn triangle_hit(&self, ray: &Ray, id: usize, t: f32) -> Hit {
@@ -200,19 +199,15 @@ impl Geometry {
             p,
             ng,
             ns,
-            surface: Surface::Material(info.material),
+            material: info.material,
         }
     }
 }
 
-fn sphere_hit(ray: &Ray, c: Vec3, r: f32, tmax: f32) -> Option<f32> {
+/// The nearer root of |o + t d - c| = r (unit d): where the line enters the sphere.
+fn sphere_entry(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
     let oc = ray.o - c;
     let b = oc.dot(ray.d);
-    let cc = oc.length_squared() - r * r;
-    let disc = b * b - cc;
-    if disc < 0.0 {
-        return None;
-    }
-    let s = disc.sqrt();
-    [-b - s, -b + s].into_iter().find(|&t| t > EPS && t < tmax)
+    let disc = b * b - (oc.length_squared() - r * r);
+    (disc >= 0.0).then(|| -b - disc.sqrt())
 }

@@ -16,7 +16,7 @@ use super::{timed, Counters};
 use crate::bsdf;
 use crate::core::Ray;
 use crate::core::Rgb;
-use crate::geometry::{Geometry, Hit, Surface, EPS};
+use crate::geometry::{Geometry, Hit, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
 use crate::scene::{Camera, Material};
@@ -94,6 +94,12 @@ impl Pinhole {
     pub fn film_slope_bound(&self) -> f32 {
         let aspect = self.width as f32 / self.height as f32;
         self.tan_half * (aspect * aspect + 1.0).sqrt()
+    }
+
+    /// Bound on the angle (radians) between two rays through one pixel: the diagonal's
+    /// angle at the film's centre, where pixels subtend the most.
+    pub fn pixel_diagonal(&self) -> f32 {
+        std::f32::consts::SQRT_2 * 2.0 * self.tan_half / self.height as f32
     }
 
     /// World-space width of one pixel at distance `dist` along the view axis.
@@ -207,6 +213,9 @@ struct StratPlan {
     /// The strata are in another cycle's order: shuffle them into this one's.
     reshuffle: bool,
 }
+
+/// Strata per side of the pixel for the sphere lights seen directly.
+const LIGHT_STRATA: u32 = 4;
 
 /// Everything a camera pass reads.
 pub struct CameraTracer<'a> {
@@ -371,13 +380,7 @@ impl CameraTracer<'_> {
                 }
                 break;
             };
-            let material = match h.surface {
-                Surface::Emitter(le) => {
-                    l += st.beta * le;
-                    break;
-                }
-                Surface::Material(m) => m,
-            };
+            let material = h.material;
             if let Material::Lambert { reflectance } = material {
                 l += st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
                 break;
@@ -407,8 +410,8 @@ impl CameraTracer<'_> {
     }
 
     /// One camera segment [0, t_surf) of `ray`: its transmittance estimate, direct light
-    /// along it (NEE), its record for the beam estimate (`first`'s primary, or a secondary
-    /// in `out`), and the path weight attenuated to its end. Returns the direct light.
+    /// along it (NEE) and from the sphere lights it passes, its record for the beam estimate (`first`'s primary, or a secondary
+    /// in `out`), and the path weight attenuated to its end. Returns the light it adds.
     #[allow(clippy::too_many_arguments)]
     fn segment(
         &self,
@@ -437,6 +440,18 @@ impl CameraTracer<'_> {
             l = st.beta * d.along(ray, t_surf, &spans, tr, rng, c);
         }
         let beta = st.beta;
+        if primary.is_some() {
+            l += self.lights_in_pixel(out.pixel, rng, c);
+        } else {
+            for (t, le) in self.geometry.lights_seen(ray, t_surf) {
+                let tr = if st.in_glass {
+                    1.0
+                } else {
+                    camera_tr(self.media, ray, &gtr, t)
+                };
+                l += beta * le * tr;
+            }
+        }
         // To the surface, or to infinity for a path that leaves the scene when a light
         // there (the environment) is what it will see.
         let reaches = t_surf.is_finite() || self.lights.at_infinity() || self.transparent;
@@ -446,6 +461,40 @@ impl CameraTracer<'_> {
         }
         record(ray, t_surf, beta, gtr, primary, &spans, out);
         l
+    }
+
+    /// The sphere lights seen directly across pixel `idx`, from [`LIGHT_STRATA`]^2 jittered
+    /// rays over its footprint: with the camera ray alone, a pixel on a small light's rim
+    /// would be a coin toss each pass, and such pixels can hold much of an image's sum.
+    fn lights_in_pixel(&self, idx: u32, rng: &mut Rng, c: &mut Counters) -> Rgb {
+        let (x, y) = (
+            (idx % self.camera.width) as f32,
+            (idx / self.camera.width) as f32,
+        );
+        let centre = self.camera.ray(x + 0.5, y + 0.5);
+        if !self
+            .geometry
+            .lights_near(&centre, self.camera.pixel_diagonal())
+        {
+            return Rgb::ZERO;
+        }
+        let n = LIGHT_STRATA;
+        let mut l = Rgb::ZERO;
+        for k in 0..n * n {
+            let (i, j) = ((k % n) as f32, (k / n) as f32);
+            let u = rng.vec2();
+            let ray = self
+                .camera
+                .ray(x + (i + u.x) / n as f32, y + (j + u.y) / n as f32);
+            let t_surf = self
+                .geometry
+                .intersect(&ray, f32::INFINITY)
+                .map_or(f32::INFINITY, |h| h.t);
+            for (t, le) in self.geometry.lights_seen(&ray, t_surf) {
+                l += le * self.free_path.transmittance(&ray, t, rng, c);
+            }
+        }
+        l / (n * n) as f32
     }
 
     /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate plus,

@@ -125,7 +125,7 @@ impl Direct<'_> {
     /// exp(-tau) times a ratio-tracking estimate through the grids.
     pub fn shadow(&self, x: Vec3, dir: Vec3, dist: f32, rng: &mut Rng, c: &mut Counters) -> f32 {
         let ray = Ray::new(x, dir);
-        // Stop short of a sphere light's own surface.
+        // Stop just short of the light (one placed on a surface).
         let tmax = if dist.is_finite() {
             dist * (1.0 - 1e-4)
         } else {
@@ -135,11 +135,7 @@ impl Direct<'_> {
         if self.geometry.intersect(&ray, tmax).is_some() {
             return 0.0;
         }
-        let tr = (-self.media().optical_depth(&ray, 0.0, tmax)).exp();
-        if tr <= 0.0 || !self.media().crosses_grids(&ray, tmax) {
-            return tr;
-        }
-        tr * self.free_path.ratio_transmittance(&ray, tmax, rng, c)
+        self.free_path.transmittance(&ray, tmax, rng, c)
     }
 
     /// Direct radiance reflected at a Lambert point `p` (normal `n` on the viewer's side,

@@ -182,6 +182,16 @@ impl FreePath<'_> {
         }
         tr
     }
+
+    /// Transmittance along `ray` to `tmax` (infinite: out of the scene), unbiased: the
+    /// homogeneous media's exp(-tau) times a ratio-tracking estimate through the grids.
+    pub fn transmittance(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> f32 {
+        let tr = (-self.media.optical_depth(ray, 0.0, tmax)).exp();
+        if tr <= 0.0 || !self.media.crosses_grids(ray, tmax) {
+            return tr;
+        }
+        tr * self.ratio_transmittance(ray, tmax, rng, c)
+    }
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
 use crate::core::Ray;
 use crate::core::Rgb;
-use crate::geometry::{Geometry, Surface, EPS};
+use crate::geometry::{Geometry, EPS};
 use crate::media::Media;
 use crate::sampling::{Discrete, Rng, Stream};
 use crate::scene::{Light, Material};
@@ -178,9 +178,7 @@ impl LightTracer<'_> {
                 continue;
             }
             let Some(h) = hit else { return };
-            let Surface::Material(material) = h.surface else {
-                return;
-            };
+            let material = h.material;
             let side = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
             if let Material::Lambert { .. } = material {
                 if !direct {
