@@ -42,6 +42,11 @@ pub struct Tracer {
 }
 
 impl Tracer {
+    /// The pixels that see a light directly, which the error estimate leaves out.
+    pub fn light_pixels(&self) -> Vec<u32> {
+        crate::transport::camera::light_pixels(&self.camera, &self.geometry)
+    }
+
     /// A tracer whose grids' octrees are baked in memory (no cache).
     pub fn new(scene: &Scene, settings: RenderSettings) -> Result<Self> {
         let media = Media::bake(

@@ -79,7 +79,7 @@ impl Session {
             strat: tracer.strat_store(),
             ramp: Ramp::Off,
             beams,
-            film: Film::new(w, h),
+            film: Film::new(w, h).with_lights(tracer.light_pixels()),
             counters: Counters::default(),
             timings: Timings::default(),
             last: None,
@@ -246,7 +246,7 @@ impl Session {
     /// Continues from `film` (a partial part file's sums): the next passes add to it.
     pub fn resume(&mut self, film: Film) -> Result<()> {
         self.restart()?;
-        self.film = film;
+        self.film = film.with_lights(self.film.lights().to_vec());
         Ok(())
     }
 
@@ -267,7 +267,8 @@ impl Session {
     /// Empties the film and the estimator's sums; the next pass starts a new average.
     pub fn restart(&mut self) -> Result<()> {
         self.beams.get().clear()?;
-        self.film = Film::new(self.film.width, self.film.height);
+        let lights = self.film.lights().to_vec();
+        self.film = Film::new(self.film.width, self.film.height).with_lights(lights);
         self.last = None;
         Ok(())
     }

@@ -134,3 +134,20 @@ fn pixels_on_a_light_match_its_coverage() {
     );
     assert!(bound < 0.05 * total_want, "test too weak: {bound}");
 }
+
+/// The pixels ppb leaves out of its error estimate are the references' emitter masks
+/// (pixels whose footprint sees the light directly, dilated by one pixel).
+#[test]
+fn light_pixels_are_the_references_emitter_masks() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for name in ["fog-near-light", "glass-caustic"] {
+        let file = load(&root.join(format!("scenes/conformance/{name}/scene.toml"))).unwrap();
+        let tracer = Tracer::new(&file.scene, file.settings.clone()).expect("renderer");
+        let mask = root.join(format!("tests/data/conformance/{name}/emitter_mask.png"));
+        let (w, _, m) = ppb::compare::read_mask(&mask).expect("mask");
+        let want: Vec<u32> = (0..m.len() as u32).filter(|&i| m[i as usize]).collect();
+        let got = tracer.light_pixels();
+        assert!(w == 256 && !want.is_empty());
+        assert_eq!(got, want, "{name}");
+    }
+}

@@ -11,7 +11,8 @@ use ppb::core::frames::{at_frame, FrameList};
 use ppb::estimate::Timings;
 use ppb::farm::part::content_hash;
 use ppb::farm::{Part, PartHeader, PassRange, Tasks};
-use ppb::film::error::{ErrorEstimate, Metric};
+use ppb::film::error::{Bandwidth, ErrorEstimate, Metric, MIN_HALF_PASSES};
+use ppb::film::Film;
 use ppb::gpu::beams::GpuStats;
 use ppb::gpu::Gpu;
 use ppb::output::{Channel, ExrMeta};
@@ -42,10 +43,11 @@ pub struct RenderArgs {
     /// finishes). Not with a pass range or a task.
     #[arg(long)]
     pub time: Option<f64>,
-    /// Stop each frame when its estimated error (rel_l1 from the converged image, see
-    /// --target-on) falls below E, e.g. 0.01. The estimate is the noise of the mean of the
-    /// passes, from the spread between its odd and even passes; the kernel's bias is not in
-    /// it. A frame never stops on it before 16 passes. --passes or --time, when given,
+    /// Stop each frame when its estimated error (rel_l1 from the converged image over the
+    /// pixels that do not see a light directly, see --target-on) falls below E, e.g. 0.01. The estimate is the noise of the mean of the
+    /// passes, from the spread between its odd and even passes, with the beams' kernel bias,
+    /// from their estimates at half the radius (the surface photons' bias is not in it). A
+    /// frame never stops on it before 4 passes. --passes or --time, when given,
     /// still stop the frame first (with a warning); without them the frame runs until the
     /// target. Not with a pass range or a task.
     #[arg(long, value_name = "E")]
@@ -55,7 +57,11 @@ pub struct RenderArgs {
     #[arg(long, value_enum, default_value = "pixel", requires = "target_error")]
     pub target_on: TargetOn,
     /// Add the per-pixel error estimate to the EXR as channels error.R, error.G, error.B
-    /// (expected absolute error in radiance units, averaged over 3x3 pixels).
+    /// (expected absolute error in radiance units, averaged over 3x3 pixels); and, where
+    /// the beams' kernels were nested, bias.R, bias.G, bias.B (the signed bias estimate of
+    /// the image at the fixed bandwidth: negative where the kernel blurs a peak away) and
+    /// lambda (the adaptive kernel's weight on r/2: the fixed image is the written one
+    /// plus lambda * bias / 1.547).
     #[arg(long)]
     pub error_layer: bool,
     /// Frames to render, e.g. 1-240,300. The frame token (a run of #) in the scene's path,
@@ -633,11 +639,12 @@ impl Run<'_> {
     }
 }
 
-/// Passes each half-film holds before an error target can stop a frame. Where a pixel's
-/// light comes from rare paths (a caustic's), the halves' difference sees them in one half
-/// or neither and estimates up to half the error (glass-caustic's 4x4 blocks after 8
-/// passes: 0.017 estimated, 0.032 measured); after 16 passes that has mostly passed.
-const MIN_TARGET_HALF_PASSES: u32 = 8;
+/// Passes each half-film holds before an error target can stop a frame: the estimate's
+/// own minimum. (It was 8 while a pixel on a light's rim was a coin toss each pass: the
+/// halves saw such rare contributions in one half or neither and read half the error.
+/// With the light's pixels sampled 4x4 and left out, glass-caustic's estimate after 4
+/// passes matched two seeds' measured noise; docs/error-estimate.md.)
+const MIN_TARGET_HALF_PASSES: u32 = MIN_HALF_PASSES;
 
 /// `--target-error`: the estimate, computed after a pass when one is due.
 struct ErrorGoal {
@@ -748,6 +755,7 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
             h.done = film.passes();
             h.odd_done = film.odd_passes();
             h.nested_done = film.counts().nested;
+            h.lights = film.lights().to_vec();
             h.seconds = seconds;
             h.exr = meta.exr(h.passes, 0.0);
             Part::write(path, h, &film)?;
@@ -757,12 +765,10 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
             let mut exr = meta.exr(s.passes(), seconds);
             let film = s.film()?;
             super::set_error_estimate(&mut exr, &film, meta.settings.bandwidth);
-            let layer = match film
-                .error_map(meta.settings.bandwidth)
-                .filter(|_| meta.args.error_layer)
-            {
-                Some(map) => error_channels(&map),
-                None => Vec::new(),
+            let layer = if meta.args.error_layer {
+                error_channels(&film, meta.settings.bandwidth)
+            } else {
+                Vec::new()
             };
             super::write_image_with(&t.out, &img, &exr, &layer, meta.settings.exposure)?;
         }
@@ -770,13 +776,25 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
     Ok(())
 }
 
-/// The per-pixel error map as EXR channels error.R, error.G, error.B.
-fn error_channels(map: &[[f32; 3]]) -> Vec<Channel<'static>> {
-    ["error.R", "error.G", "error.B"]
-        .into_iter()
-        .enumerate()
-        .map(|(c, name)| (name, map.iter().map(|p| p[c]).collect()))
-        .collect()
+/// The error layer's EXR channels (`--error-layer`): error.RGB, and bias.RGB and lambda
+/// where the film has nested sums; none before the error can be estimated.
+fn error_channels(film: &Film, bandwidth: Bandwidth) -> Vec<Channel<'static>> {
+    let rgb = |names: [&'static str; 3], map: &[[f32; 3]]| {
+        names
+            .into_iter()
+            .enumerate()
+            .map(|(c, name)| (name, map.iter().map(|p| p[c]).collect()))
+            .collect::<Vec<Channel<'static>>>()
+    };
+    let mut out = film
+        .error_map(bandwidth)
+        .map_or_else(Vec::new, |m| rgb(["error.R", "error.G", "error.B"], &m));
+    if let (Some(bias), Some(lambda)) = (film.bias_map(), film.lambda_map(bandwidth)) {
+        let bias: Vec<[f32; 3]> = bias.iter().map(|b| b.map(|c| c as f32)).collect();
+        out.extend(rgb(["bias.R", "bias.G", "bias.B"], &bias));
+        out.push(("lambda", lambda));
+    }
+    out
 }
 
 /// The header of a task's part file, before any pass.
@@ -803,6 +821,7 @@ fn part_header(
         seconds: 0.0,
         exposure: settings.exposure,
         bandwidth: settings.bandwidth,
+        lights: Vec::new(),
         exr: ExrMeta::default(),
         scene: args.scene.display().to_string(),
     })

@@ -53,6 +53,9 @@ pub struct PartHeader {
     pub exposure: f32,
     /// How the merged film becomes the image.
     pub bandwidth: Bandwidth,
+    /// The pixels that see a light directly, left out of the error estimate.
+    #[serde(default)]
+    pub lights: Vec<u32>,
     /// EXR header attributes of the merged image.
     pub exr: ExrMeta,
 }
@@ -194,7 +197,8 @@ impl Part {
             nested: header.nested_done,
         };
         let mut film = Film::from_sums(header.width, header.height, counts, halves(0), halves(1))
-            .ok_or_else(|| bad("size does not match the sums"))?;
+            .ok_or_else(|| bad("size does not match the sums"))?
+            .with_lights(header.lights.clone());
         if !alpha.is_empty() {
             let alpha = alpha
                 .chunks_exact(16)
@@ -279,7 +283,7 @@ pub fn merge(mut parts: Vec<Part>) -> Result<(PartHeader, Film)> {
             h0.passes
         )));
     }
-    let mut film = Film::new(h0.width, h0.height);
+    let mut film = Film::new(h0.width, h0.height).with_lights(h0.lights.clone());
     for p in &parts {
         film.merge(&p.film);
     }
@@ -323,12 +327,13 @@ mod tests {
             seconds: 1.0,
             exposure: 0.0,
             bandwidth: Bandwidth::Fixed,
+            lights: vec![1],
             exr: ExrMeta::default(),
         }
     }
 
     fn part(dir: &Path, range: (u32, u32)) -> Part {
-        let mut film = Film::new(2, 1);
+        let mut film = Film::new(2, 1).with_lights(vec![1]);
         for i in range.0..range.1 {
             film.add_pass(i % 2 == 0, &[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
             film.add_nested(i % 2 == 0, &[Vec3::splat(-0.01 * i as f32), Vec3::ZERO]);
@@ -385,7 +390,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("ppb-part-alpha-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let film = |range: (u32, u32)| {
-            let mut f = Film::new(2, 1);
+            let mut f = Film::new(2, 1).with_lights(vec![1]);
             for i in range.0..range.1 {
                 f.add_pass(i % 2 == 0, &[Vec3::splat(i as f32), Vec3::ONE]);
                 f.add_alpha(&[0.25 * i as f32, 1.0]);

@@ -220,15 +220,17 @@ impl Film {
     }
 
     /// The expected rel_l1 of the image `bandwidth` resolves from the converged
-    /// radiance, per pixel and on 4x4 block means; None until each half-film holds
+    /// radiance, per pixel and on 4x4 block means, without the pixels that see a light
+    /// directly ([`Film::with_lights`]); None until each half-film holds
     /// [`MIN_HALF_PASSES`] passes.
     pub fn error_estimate(&self, bandwidth: Bandwidth) -> Option<ErrorEstimate> {
         let Parts { mean, noise, bias } = self.parts(bandwidth)?;
         let (w, h) = (self.width as usize, self.height as usize);
-        let rel = |err: f64, m: &Pixels| {
-            let total = l1(m);
+        let (px, bl) = self.judged();
+        let rel = |err: &Pixels, m: &Pixels, keep: &[bool]| {
+            let total = l1(m, keep);
             if total > 0.0 {
-                err / total
+                l1(err, keep) / total
             } else {
                 0.0
             }
@@ -242,21 +244,41 @@ impl Film {
             ),
             None => (None, None),
         };
-        let total = |noise: &Pixels, bias: &Option<Pixels>| l1(&together(noise, bias.as_ref()));
         let (block_mean, block_noise) = (block(&mean), block(&noise));
         Some(ErrorEstimate {
-            pixel: rel(total(&noise, &pixel_bias), &mean),
-            block: rel(total(&block_noise, &block_bias), &block_mean),
+            pixel: rel(&together(&noise, pixel_bias.as_ref()), &mean, &px),
+            block: rel(
+                &together(&block_noise, block_bias.as_ref()),
+                &block_mean,
+                &bl,
+            ),
             noise: Rel {
-                pixel: rel(l1(&noise), &mean),
-                block: rel(l1(&block_noise), &block_mean),
+                pixel: rel(&noise, &mean, &px),
+                block: rel(&block_noise, &block_mean, &bl),
             },
             bias: pixel_bias.zip(block_bias).map(|(p, b)| Rel {
-                pixel: rel(l1(&p), &mean),
-                block: rel(l1(&b), &block_mean),
+                pixel: rel(&p, &mean, &px),
+                block: rel(&b, &block_mean, &bl),
             }),
             passes: self.counts.passes,
         })
+    }
+
+    /// Which pixels and which 4x4 blocks the estimate judges: all but the pixels that see
+    /// a light directly and the blocks that touch them (as `equal_time.py` judges).
+    fn judged(&self) -> (Vec<bool>, Vec<bool>) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let (bw, bh) = (w / BLOCK, h / BLOCK);
+        let (mut px, mut bl) = (vec![true; w * h], vec![true; bw * bh]);
+        for &p in self.lights() {
+            let p = p as usize;
+            px[p] = false;
+            let (bx, by) = (p % w / BLOCK, p / w / BLOCK);
+            if bx < bw && by < bh {
+                bl[by * bw + bx] = false;
+            }
+        }
+        (px, bl)
     }
 
     /// Each pixel's signed bias estimate, -K D (radiance units, RGB), of the image at the
@@ -265,6 +287,15 @@ impl Film {
     pub fn bias_map(&self) -> Option<Vec<[f64; 3]>> {
         let d = self.resolve(Bandwidth::Fixed)?.d?;
         Some(d.mean.iter().map(|v| v.map(|c| -BIAS_PER_D * c)).collect())
+    }
+
+    /// Each pixel's lambda in the image `bandwidth` resolves: the weight of the r/2 kernel
+    /// (0 everywhere at the fixed bandwidth); None until the noise can be estimated or
+    /// where the nested sums are missing.
+    pub fn lambda_map(&self, bandwidth: Bandwidth) -> Option<Vec<f32>> {
+        let r = self.resolve(bandwidth)?;
+        r.d.as_ref()?;
+        Some(r.lambda.iter().map(|&l| l as f32).collect())
     }
 
     /// Each pixel's expected absolute error per channel (radiance units) in the image
@@ -301,8 +332,14 @@ fn together(noise: &Pixels, bias: Option<&Pixels>) -> Pixels {
     }
 }
 
-fn l1(v: &[[f64; 3]]) -> f64 {
-    v.iter().flatten().map(|x| x.abs()).sum()
+/// Sum of |v| over the kept pixels.
+fn l1(v: &[[f64; 3]], keep: &[bool]) -> f64 {
+    v.iter()
+        .zip(keep)
+        .filter(|(_, &k)| k)
+        .flat_map(|(p, _)| p)
+        .map(|x| x.abs())
+        .sum()
 }
 
 /// The mean of each pixel's (2 k + 1)^2 window, clipped at the image's edges.
@@ -433,6 +470,12 @@ mod tests {
     /// `passes` passes of a 64x64 film whose pixels are `mean` plus noise shared by each
     /// 4x4 block (sd `block_sd`) plus noise of their own (sd `pixel_sd`).
     fn film(passes: u32, mean: f32, block_sd: f32, pixel_sd: f32) -> Film {
+        film_with_light(passes, mean, block_sd, pixel_sd, 0)
+    }
+
+    /// [`film`] with its first `light` pixels (row 0) a bright, noisy light: the same
+    /// draws scaled 1000 times, the noise 10,000 times.
+    fn film_with_light(passes: u32, mean: f32, block_sd: f32, pixel_sd: f32, light: usize) -> Film {
         const N: usize = 64;
         let mut film = Film::new(N as u32, N as u32);
         let mut rng = Rng::new(7, 1);
@@ -441,8 +484,9 @@ mod tests {
             let img: Vec<Vec3> = (0..N * N)
                 .map(|p| {
                     let b = shared[(p / N / 4) * (N / 4) + (p % N) / 4];
+                    let (m, s) = if p < light { (1e3, 1e4) } else { (1.0, 1.0) };
                     Vec3::from_array(
-                        [0; 3].map(|_| mean + block_sd * b + pixel_sd * gauss(&mut rng)),
+                        [0; 3].map(|_| m * mean + s * (block_sd * b + pixel_sd * gauss(&mut rng))),
                     )
                 })
                 .collect();
@@ -460,6 +504,23 @@ mod tests {
     /// sqrt(2/pi); `terms` independent ones average it down.
     fn tolerance(terms: usize) -> f64 {
         4.0 * ((PI / 2.0 - 1.0) / terms as f64).sqrt()
+    }
+
+    /// The pixels that see a light are left out of the estimate, with the blocks they
+    /// touch: a bright, noisy light there changes nothing.
+    #[test]
+    fn leaves_the_lights_pixels_out() {
+        let light: Vec<u32> = (0..8).collect();
+        let plain = film(25, 2.0, 0.1, 0.5).with_lights(light.clone());
+        let lit = film_with_light(25, 2.0, 0.1, 0.5, light.len());
+        let e = |f: &Film| f.error_estimate(Bandwidth::Fixed).unwrap();
+        let (a, b) = (e(&plain), e(&lit.clone().with_lights(light)));
+        assert_eq!((a.pixel, a.block), (b.pixel, b.block));
+        let c = e(&lit);
+        assert!(
+            c.pixel > 2.0 * a.pixel && c.block > 2.0 * a.block,
+            "{c:?} vs {a:?}"
+        );
     }
 
     #[test]

@@ -92,6 +92,8 @@ pub struct Film {
     counts: Counts,
     /// Alpha sums (a transparent film), else empty.
     alpha: Vec<i128>,
+    /// Pixels that see a light directly (sorted): left out of the error estimate.
+    lights: Vec<u32>,
 }
 
 /// `x` as a fixed-point value; non-finite values (never produced by a correct pass)
@@ -114,7 +116,24 @@ impl Film {
             nested: Halves::new(pixels),
             counts: Counts::default(),
             alpha: Vec::new(),
+            lights: Vec::new(),
         }
+    }
+
+    /// The film with `pixels` (those that see a light directly) left out of its error
+    /// estimate, as the references are judged: a small bright light can hold most of an
+    /// image's sum, so a relative error over it would say little about the rest.
+    pub fn with_lights(mut self, mut pixels: Vec<u32>) -> Self {
+        pixels.sort_unstable();
+        pixels.dedup();
+        pixels.retain(|&p| (p as usize) < self.image.all.len());
+        self.lights = pixels;
+        self
+    }
+
+    /// The pixels left out of the error estimate.
+    pub fn lights(&self) -> &[u32] {
+        &self.lights
     }
 
     /// A film from stored sums (a part file): the image's and the nested ones over the
@@ -139,6 +158,7 @@ impl Film {
             nested,
             counts,
             alpha: Vec::new(),
+            lights: Vec::new(),
         })
     }
 

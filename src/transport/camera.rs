@@ -217,6 +217,42 @@ struct StratPlan {
 /// Strata per side of the pixel for the sphere lights seen directly.
 const LIGHT_STRATA: u32 = 4;
 
+/// The pixels whose footprint sees a sphere light directly (an 8x8 grid of rays, each to
+/// its first surface), dilated by one pixel: the references' emitter masks.
+pub fn light_pixels(camera: &Pinhole, geometry: &Geometry) -> Vec<u32> {
+    const GRID: u32 = 8;
+    let (w, h) = (camera.width, camera.height);
+    let sees = |x: u32, y: u32| {
+        let centre = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+        geometry.lights_near(&centre, camera.pixel_diagonal())
+            && (0..GRID * GRID).any(|k| {
+                let (i, j) = ((k % GRID) as f32 + 0.5, (k / GRID) as f32 + 0.5);
+                let ray = camera.ray(x as f32 + i / GRID as f32, y as f32 + j / GRID as f32);
+                let t_surf = geometry
+                    .intersect(&ray, f32::INFINITY)
+                    .map_or(f32::INFINITY, |h| h.t);
+                geometry.lights_seen(&ray, t_surf).next().is_some()
+            })
+    };
+    let seen: Vec<(u32, u32)> = (0..w * h)
+        .into_par_iter()
+        .filter_map(|i| sees(i % w, i / w).then_some((i % w, i / w)))
+        .collect();
+    let mut out: Vec<u32> = seen
+        .iter()
+        .flat_map(|&(x, y)| {
+            let (xs, ys) = (
+                x.saturating_sub(1)..(x + 2).min(w),
+                y.saturating_sub(1)..(y + 2).min(h),
+            );
+            ys.flat_map(move |v| xs.clone().map(move |u| v * w + u))
+        })
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
 /// Everything a camera pass reads.
 pub struct CameraTracer<'a> {
     pub camera: &'a Pinhole,
