@@ -446,8 +446,9 @@ impl CameraTracer<'_> {
     }
 
     /// One camera segment [0, t_surf) of `ray`: its transmittance estimate, direct light
-    /// along it (NEE) and from the sphere lights it passes, its record for the beam estimate (`first`'s primary, or a secondary
-    /// in `out`), and the path weight attenuated to its end. Returns the light it adds.
+    /// along it (NEE) and from the sphere lights it passes, its record for the beam
+    /// estimate (`first`'s primary, or a secondary in `out`), and the path weight
+    /// attenuated to its end. Returns the light it adds.
     #[allow(clippy::too_many_arguments)]
     fn segment(
         &self,
