@@ -14,12 +14,13 @@ import argparse
 import json
 import math
 import os
-import re
 import subprocess
+import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.path.join(os.path.dirname(ROOT), "shared", "conformance")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from radius_split import compare, reference_noise  # noqa: E402
 # Scene, metric the target applies to (glass-caustic's reference is judged on blocks).
 SCENES = [
     ("fog-box", "pixel"),
@@ -30,34 +31,6 @@ SCENES = [
     ("glass-caustic", "blocks"),
     ("cloud-sky", "pixel"),
 ]
-
-
-def reference_noise(scene):
-    """The reference's own rel_l1 (per pixel, 4x4) outside its emitter mask where it gives
-    that, else over the whole image; zeros when unknown."""
-    for d in (os.path.join(ROOT, "tests/data/conformance", scene), os.path.join(SHARED, scene)):
-        p = os.path.join(d, "reference.json")
-        if os.path.exists(p):
-            info = json.load(open(p))
-            n = info.get("emitter_mask", {}).get("noise_excluding_mask") or info.get("noise", {})
-            if "rel_l1_halves_over_2" in n:
-                return n["rel_l1_halves_over_2"], n["rel_l1_halves_over_2_4x4_block_means"]
-            if "pixel" in n:
-                return n["pixel"], n.get("4x4", 0.0)
-    return 0.0, 0.0
-
-
-def compare(ppb, img, scene):
-    """rel_l1 per pixel and of 4x4 block means, without the emitter mask's pixels."""
-    data = os.path.join(ROOT, "tests/data/conformance", scene)
-    cmd = [ppb, "compare", img, os.path.join(data, "reference.exr"), "--block", "4"]
-    mask = os.path.join(data, "emitter_mask.png")
-    if os.path.exists(mask):
-        cmd += ["--mask", mask]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-    pixel = float(re.search(r"^rel_l1\s+([\d.e-]+)", out, re.M).group(1))
-    block = float(re.search(r"block means\s+([\d.e-]+)", out).group(1))
-    return pixel, block
 
 
 def main():
