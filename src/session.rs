@@ -158,6 +158,7 @@ impl Session {
         let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
         let t1 = Instant::now();
         self.film.add_pass(p.odd, &traced.camera.image);
+        self.film.add_photon_nested(p.odd, &traced.camera.nested);
         self.film.add_alpha(&traced.camera.alpha);
         let evals =
             self.beams

@@ -66,7 +66,7 @@ fn light_through_glass_reaches_the_floor_only_through_photons() {
     };
     let ((hybrid, hybrid_beams), (pure, pure_beams)) = (photons(true), photons(false));
     let mut n = 0;
-    let radiance = |m: &Photons, p: Vec3, n: &mut u64| m.radiance(p, Vec3::Y, RHO, n).x;
+    let radiance = |m: &Photons, p: Vec3, n: &mut u64| m.radiance(p, Vec3::Y, RHO, n).l.x;
     // Under the glass: the caustic, the same photons whichever method traced them.
     let (h, p) = (
         radiance(&hybrid, under, &mut n),

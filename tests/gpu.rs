@@ -528,6 +528,7 @@ fn one_pixel_on_gpu(
         odd: true,
         camera: CameraPass {
             image: vec![Vec3::ZERO],
+            nested: vec![Vec3::ZERO],
             alpha: Vec::new(),
             primaries: vec![Primary {
                 dir,

@@ -423,6 +423,7 @@ fn beam_estimate_tracks_camera_transmittance() {
                 camera: CameraPass {
                     alpha: Vec::new(),
                     image: vec![Vec3::ZERO; pixels],
+                    nested: vec![Vec3::ZERO; pixels],
                     primaries: vec![
                         Primary {
                             dir: ray.d,

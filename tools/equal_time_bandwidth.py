@@ -4,7 +4,7 @@ For each public scene and budget T: Mitsuba renders for T seconds (as
 ../shared/tools/equal_time.py does, whose functions this uses), then ppb renders once with
 `--time T --bandwidth adaptive --error-layer`. Fixed and adaptive images come from the
 same passes (lambda is chosen when the image is written), so the fixed one is recovered
-from that one render's layers: fixed = adaptive + lambda * bias / 1.547. Both are then at
+from that one render's layers: fixed = adaptive - narrowing. Both are then at
 exactly equal time. Printed per scene and budget: passes, and the rel_l1 of Mitsuba, ppb
 fixed and ppb adaptive, per pixel and over 4x4 block means, raw and net of the
 reference's own noise, with Mitsuba / ppb. Pixels of emitter_mask.png are left out where
@@ -27,10 +27,6 @@ sys.path.insert(0, os.path.join(ROOT, "..", "shared", "tools"))
 import equal_time as E  # noqa: E402
 import mitsuba_scenes as S  # noqa: E402
 
-# film::error::BIAS_PER_D: the bias layer is -K D.
-K = 1.547005383792515
-
-
 def both_images(mi, path):
     """The adaptive image of an `--error-layer` EXR and the fixed one of the same passes."""
     bitmap = mi.Bitmap(path)
@@ -38,10 +34,9 @@ def both_images(mi, path):
     data = np.array(bitmap, dtype=np.float64)
     pick = lambda *chans: np.stack([data[..., names.index(c)] for c in chans], axis=-1)
     adaptive = pick("R", "G", "B")
-    if "lambda" not in names:
+    if "narrowing.R" not in names:
         return adaptive, adaptive
-    lam = data[..., names.index("lambda")][..., None]
-    return adaptive + lam * pick("bias.R", "bias.G", "bias.B") / K, adaptive
+    return adaptive - pick("narrowing.R", "narrowing.G", "narrowing.B"), adaptive
 
 
 def main():

@@ -59,9 +59,10 @@ pub struct RenderArgs {
     /// Add the per-pixel error estimate to the EXR as channels error.R, error.G, error.B
     /// (expected absolute error in radiance units, averaged over 3x3 pixels); and, where
     /// the beams' kernels were nested, bias.R, bias.G, bias.B (the signed bias estimate of
-    /// the image at the fixed bandwidth: negative where the kernel blurs a peak away) and
-    /// lambda (the adaptive kernel's weight on r/2: the fixed image is the written one
-    /// plus lambda * bias / 1.547).
+    /// the image at the fixed bandwidth, beams' and surface photons' kernels: negative
+    /// where a kernel blurs a peak away), lambda (the adaptive kernel's weight on r/2)
+    /// and, with --bandwidth adaptive, narrowing.R, narrowing.G, narrowing.B (what the
+    /// adaptive kernel added: the fixed image is the written one minus it).
     #[arg(long)]
     pub error_layer: bool,
     /// Frames to render, e.g. 1-240,300. The frame token (a run of #) in the scene's path,
@@ -776,8 +777,9 @@ fn save(s: &mut Session, t: &mut Target, meta: &FrameMeta, seconds: f64) -> Resu
     Ok(())
 }
 
-/// The error layer's EXR channels (`--error-layer`): error.RGB, and bias.RGB and lambda
-/// where the film has nested sums; none before the error can be estimated.
+/// The error layer's EXR channels (`--error-layer`): error.RGB, and bias.RGB, lambda and
+/// (adaptive bandwidth) narrowing.RGB where the film has nested sums; none before the
+/// error can be estimated.
 fn error_channels(film: &Film, bandwidth: Bandwidth) -> Vec<Channel<'static>> {
     let rgb = |names: [&'static str; 3], map: &[[f32; 3]]| {
         names
@@ -789,10 +791,16 @@ fn error_channels(film: &Film, bandwidth: Bandwidth) -> Vec<Channel<'static>> {
     let mut out = film
         .error_map(bandwidth)
         .map_or_else(Vec::new, |m| rgb(["error.R", "error.G", "error.B"], &m));
+    let f32s =
+        |m: Vec<[f64; 3]>| -> Vec<[f32; 3]> { m.iter().map(|p| p.map(|c| c as f32)).collect() };
     if let (Some(bias), Some(lambda)) = (film.bias_map(), film.lambda_map(bandwidth)) {
-        let bias: Vec<[f32; 3]> = bias.iter().map(|b| b.map(|c| c as f32)).collect();
-        out.extend(rgb(["bias.R", "bias.G", "bias.B"], &bias));
+        out.extend(rgb(["bias.R", "bias.G", "bias.B"], &f32s(bias)));
         out.push(("lambda", lambda));
+    }
+    if bandwidth == Bandwidth::Adaptive {
+        if let Some(n) = film.narrowing_map(bandwidth) {
+            out.extend(rgb(["narrowing.R", "narrowing.G", "narrowing.B"], &f32s(n)));
+        }
     }
     out
 }

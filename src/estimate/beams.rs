@@ -8,7 +8,8 @@ use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
 
-use super::eq2::{nested_term, BeamPiece, Nested};
+use super::eq2::{nested_term, BeamPiece};
+use crate::core::Nested;
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::transport::Beam;

@@ -5,9 +5,9 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 use super::beams::BeamMap;
-use super::eq2::Nested;
 use super::splat::splat;
 use super::{Estimator, TracedPass, View};
+use crate::core::Nested;
 use crate::core::Rgb;
 use crate::error::Result;
 use crate::film::{Film, Held};

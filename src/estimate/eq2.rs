@@ -118,40 +118,6 @@ pub fn nested_term(
     Some((l, 4.0 * c.dist2 < r * r))
 }
 
-/// A sum of eq. 2 at the pass radius r, and beside it the same sum at r/2 minus it: the
-/// nested radius whose difference estimates the kernel's bias (`film::error`). Each pair
-/// adds l to the first, and +l (it counts at r/2 too, at 2 l) or -l (it does not) to the
-/// second.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Nested {
-    pub l: Rgb,
-    pub d: Rgb,
-}
-
-impl Nested {
-    pub fn add(&mut self, (l, inner): (Rgb, bool)) {
-        self.l += l;
-        self.d += if inner { l } else { -l };
-    }
-}
-
-impl std::ops::AddAssign for Nested {
-    fn add_assign(&mut self, o: Nested) {
-        self.l += o.l;
-        self.d += o.d;
-    }
-}
-
-impl std::ops::Mul<Nested> for Rgb {
-    type Output = Nested;
-    fn mul(self, n: Nested) -> Nested {
-        Nested {
-            l: self * n.l,
-            d: self * n.d,
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -9,7 +9,8 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::eq2::{nested_term, BeamPiece, Nested};
+use super::eq2::{nested_term, BeamPiece};
+use crate::core::Nested;
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::media::Media;

@@ -2,10 +2,11 @@
 //! must check (scene and asset hash, settings, size, seed, frame, version). Written
 //! atomically; a torn, truncated or foreign file is refused (a checksum covers all of it).
 //!
-//! Layout: `PPBPART3`, the header's length (u32 LE), the header (JSON), the sums
+//! Layout: `PPBPART4`, the header's length (u32 LE), the header (JSON), the sums
 //! (width x height x RGB, i128 LE), the sums of the odd passes alone (the same), the
-//! nested sums of all and of the odd passes (the same twice), a transparent film's alpha
-//! sums (width x height, i128 LE), then the blake3 hash of everything before it.
+//! beams' and then the photons' nested sums of all and of the odd passes (the same four
+//! times), a transparent film's alpha sums (width x height, i128 LE), then the blake3
+//! hash of everything before it.
 use std::path::{Path, PathBuf};
 
 use crate::core::fs::write_atomic;
@@ -15,10 +16,10 @@ use crate::output::ExrMeta;
 
 use super::tasks::PassRange;
 
-const MAGIC: &[u8; 8] = b"PPBPART3";
-/// Bytes of RGB sums a pixel: the image's and the nested ones, each of all passes and of
-/// the odd ones.
-const RGB_BYTES: u64 = 4 * 48;
+const MAGIC: &[u8; 8] = b"PPBPART4";
+/// Bytes of RGB sums a pixel: the image's, the beams' and the photons' nested ones, each
+/// of all passes and of the odd ones.
+const RGB_BYTES: u64 = 6 * 48;
 /// Largest header accepted (JSON; a real one is about 2 KB).
 const MAX_HEADER: usize = 1 << 20;
 
@@ -115,12 +116,12 @@ impl Part {
     pub fn write(path: &Path, header: &PartHeader, film: &Film) -> Result<()> {
         let json = serde_json::to_vec(header).map_err(|e| Error::format(path, e.to_string()))?;
         let pixels = film.sums().all.len();
-        let mut bytes = Vec::with_capacity(12 + json.len() + pixels * 208 + 32);
+        let mut bytes = Vec::with_capacity(12 + json.len() + pixels * 304 + 32);
         bytes.extend_from_slice(MAGIC);
         bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
         bytes.extend_from_slice(&json);
-        let (image, nested) = (film.sums(), film.nested_sums());
-        let rgb = [&image.all, &image.odd, &nested.all, &nested.odd];
+        let sets = [film.sums(), film.nested_sums(), film.photon_sums()];
+        let rgb = sets.into_iter().flat_map(|s| [&s.all, &s.odd]);
         for px in rgb.into_iter().flatten() {
             for c in px {
                 bytes.extend_from_slice(&c.to_le_bytes());
@@ -142,9 +143,9 @@ impl Part {
         let bad = |msg: &str| Error::format(path, format!("not a valid ppb part file: {msg}"));
         if bytes.len() < MAGIC.len() + 4 + 32 || &bytes[..8] != MAGIC {
             return Err(bad(if bytes.starts_with(b"PPBPART") {
-                "written by another version of ppb's part format (PPBPART3 expected)"
+                "written by another version of ppb's part format (PPBPART4 expected)"
             } else {
-                "no PPBPART3 signature"
+                "no PPBPART4 signature"
             }));
         }
         let (body, hash) = bytes.split_at(bytes.len() - 32);
@@ -177,7 +178,7 @@ impl Part {
             return Err(bad("more odd or nested passes than passes done"));
         }
         let (data, alpha) = data.split_at(rgb.unwrap_or(0) as usize);
-        let quarter = data.len() / 4;
+        let sixth = data.len() / 6;
         let sums = |d: &[u8]| -> Vec<[i128; 3]> {
             d.chunks_exact(48)
                 .map(|px| {
@@ -188,15 +189,16 @@ impl Part {
                 .collect()
         };
         let halves = |k: usize| Halves {
-            all: sums(&data[2 * k * quarter..(2 * k + 1) * quarter]),
-            odd: sums(&data[(2 * k + 1) * quarter..(2 * k + 2) * quarter]),
+            all: sums(&data[2 * k * sixth..(2 * k + 1) * sixth]),
+            odd: sums(&data[(2 * k + 1) * sixth..(2 * k + 2) * sixth]),
         };
         let counts = Counts {
             passes: header.done,
             odd: header.odd_done,
             nested: header.nested_done,
         };
-        let mut film = Film::from_sums(header.width, header.height, counts, halves(0), halves(1))
+        let (image, nested, photons) = (halves(0), halves(1), halves(2));
+        let mut film = Film::from_sums(header.width, header.height, counts, image, nested, photons)
             .ok_or_else(|| bad("size does not match the sums"))?
             .with_lights(header.lights.clone());
         if !alpha.is_empty() {
@@ -337,6 +339,7 @@ mod tests {
         for i in range.0..range.1 {
             film.add_pass(i % 2 == 0, &[Vec3::splat(i as f32 * 0.1), Vec3::ONE]);
             film.add_nested(i % 2 == 0, &[Vec3::splat(-0.01 * i as f32), Vec3::ZERO]);
+            film.add_photon_nested(i % 2 == 0, &[Vec3::ZERO, Vec3::splat(0.02 * i as f32)]);
         }
         let path = dir.join(format!("p{}-{}.ppbpart", range.0, range.1));
         let h = PartHeader {

@@ -16,12 +16,13 @@
 //! **Bias.** A kernel estimate's expectation is the radiance blurred by the kernel:
 //! L + c r^p + ..., with p = 2 where the radiance is smooth (the second derivatives of
 //! Hachisuka et al.'s bias term) and p = 1 at a step (a medium's silhouette). Every beam
-//! kernel evaluation also counts at r/2 (`estimate::eq2::Nested`), so the film holds D, the mean of (estimate at r/2 - estimate
-//! at r), with E[D] = -(1 - 2^-p) bias. The signed bias is estimated as -[`BIAS_PER_D`] D:
+//! kernel evaluation also counts at r/2 ([`crate::core::Nested`]), so the film holds D,
+//! the mean of (estimate at r/2 - estimate at r), with E[D] = -(1 - 2^-p) bias. The signed bias is estimated as -[`BIAS_PER_D`] D:
 //! exact for p = 1.5, within 0.77-1.16 of the truth from p = 2 to p = 1. Its size per
 //! pixel, sqrt(D^2 - var D) averaged over a window (D's own noise removed, the rest
 //! clipped at zero), enters the expected error as sqrt(bias^2 + noise^2). The surface
-//! photons' kernels are not nested (docs/error-estimate.md says why).
+//! photons' 2D kernels are nested too, in sums of their own with the same K: their bias
+//! adds to the estimate, but not to lambda (docs/error-estimate.md says why).
 //!
 //! **Adaptive bandwidth** (Kaplanyan and Dachsbacher 2013 choose each point's radius by
 //! the same balance): the adaptive image is X + lambda D per pixel, the estimate of a
@@ -32,7 +33,7 @@
 //! It converges: both X and X + D are fixed-schedule estimates (radii r_i and r_i / 2,
 //! eq. 3) that converge to the radiance, and any lambda in [0, 1], however it was
 //! chosen, gives |X + lambda D - L| <= |X - L| + |D| <= 2 |X - L| + |X + D - L|.
-use super::Film;
+use super::{Film, Halves};
 
 /// Block size of the low-frequency error (4x4 block means, as the conformance tests judge).
 pub const BLOCK: usize = 4;
@@ -74,7 +75,7 @@ pub struct ErrorEstimate {
     pub block: f64,
     /// The noise alone: the expected rel_l1 from the image's own mean.
     pub noise: Rel,
-    /// The beam kernel's bias alone; None where some pass's estimate kept no nested sums.
+    /// The kernels' bias alone; None where some pass's estimate kept no nested sums.
     pub bias: Option<Rel>,
     /// Passes it was estimated from.
     pub passes: u32,
@@ -126,23 +127,23 @@ struct Moments {
     dev: Pixels,
 }
 
-/// The film's moments as an image resolves them: the image's, D's when every pass added
-/// it, and each pixel's lambda.
+/// The film's moments as an image resolves them: the image's, the beams' D when every
+/// pass added it and the photons' beside it, and each pixel's lambda.
 struct Resolved {
     x: Moments,
     d: Option<Moments>,
+    photons: Option<Moments>,
     lambda: Vec<f64>,
 }
 
 impl Film {
-    /// The mean and scaled half-film difference of the image, or of the nested sums;
-    /// None until each half holds [`MIN_HALF_PASSES`] passes.
-    fn moments(&self, nested: bool) -> Option<Moments> {
+    /// The mean and scaled half-film difference of one set of the film's sums; None
+    /// until each half holds [`MIN_HALF_PASSES`] passes.
+    fn moments(&self, sums: &Halves) -> Option<Moments> {
         let (nb, na) = (self.half_passes(true), self.half_passes(false));
         if na.min(nb) < MIN_HALF_PASSES {
             return None;
         }
-        let sums = if nested { &self.nested } else { &self.image };
         let (odd, even) = (sums.half(true, nb), sums.half(false, na));
         let n = f64::from(na + nb);
         let scale = (f64::from(na) * f64::from(nb)).sqrt() / n;
@@ -160,43 +161,57 @@ impl Film {
     }
 
     fn resolve(&self, bandwidth: Bandwidth) -> Option<Resolved> {
-        let x = self.moments(false)?;
+        let x = self.moments(&self.image)?;
         let complete = self.counts.nested == self.counts.passes;
-        let d = complete.then(|| self.moments(true)).flatten();
+        let d = complete.then(|| self.moments(&self.nested)).flatten();
+        let photons = d.as_ref().and_then(|_| self.moments(&self.photons));
         let (w, h) = (self.width as usize, self.height as usize);
         let lambda = match (&d, bandwidth) {
             (Some(d), Bandwidth::Adaptive) => lambdas(d, w, h),
             _ => vec![0.0; w * h],
         };
-        Some(Resolved { x, d, lambda })
+        Some(Resolved {
+            x,
+            d,
+            photons,
+            lambda,
+        })
     }
 
     /// The image as `bandwidth` resolves it (the fixed one where the nested sums are
     /// missing or too few passes were made).
     pub fn image_with(&self, bandwidth: Bandwidth) -> Vec<[f32; 3]> {
-        let Some(Resolved {
-            x: _,
-            d: Some(d),
-            lambda,
-        }) = (bandwidth == Bandwidth::Adaptive)
-            .then(|| self.resolve(bandwidth))
-            .flatten()
-        else {
-            return self.image();
-        };
-        self.image()
-            .iter()
-            .zip(&d.mean)
-            .zip(&lambda)
-            .map(|((x, d), l)| [0, 1, 2].map(|c| (f64::from(x[c]) + l * d[c]) as f32))
-            .collect()
+        let image = self.image();
+        match self.narrowing_map(bandwidth) {
+            Some(n) if bandwidth == Bandwidth::Adaptive => image
+                .iter()
+                .zip(&n)
+                .map(|(x, s)| [0, 1, 2].map(|c| (f64::from(x[c]) + s[c]) as f32))
+                .collect(),
+            _ => image,
+        }
+    }
+
+    /// What the adaptive kernel adds to the fixed image, lambda D per pixel (zero at the
+    /// fixed bandwidth); None until the noise can be estimated or where the beams' nested
+    /// sums are missing.
+    pub fn narrowing_map(&self, bandwidth: Bandwidth) -> Option<Vec<[f64; 3]>> {
+        let Resolved { d, lambda, .. } = self.resolve(bandwidth)?;
+        let d = d?;
+        let shift = d.mean.iter().zip(&lambda).map(|(d, l)| d.map(|c| l * c));
+        Some(shift.collect())
     }
 
     /// The image `bandwidth` resolves, per pixel: its mean, its noise deviation, and its
     /// signed bias estimate with that estimate's own noise deviation (where the film has
-    /// nested sums).
+    /// nested sums): -(K - lambda) D of the beams' and -K D of the photons'.
     fn parts(&self, bandwidth: Bandwidth) -> Option<Parts> {
-        let Resolved { x, d, lambda } = self.resolve(bandwidth)?;
+        let Resolved {
+            x,
+            d,
+            photons,
+            lambda,
+        } = self.resolve(bandwidth)?;
         let mix = |a: &Pixels, b: Option<&Pixels>| -> Pixels {
             a.iter()
                 .enumerate()
@@ -206,16 +221,25 @@ impl Film {
                 })
                 .collect()
         };
-        let scale = |v: &Pixels| -> Pixels {
-            v.iter()
+        let bias = |beams: &Pixels, photons: Option<&Pixels>| -> Pixels {
+            beams
+                .iter()
                 .zip(&lambda)
-                .map(|(p, l)| p.map(|c| -(BIAS_PER_D - l) * c))
+                .enumerate()
+                .map(|(i, (b, l))| {
+                    let p = photons.map_or([0.0; 3], |p| p[i]);
+                    [0, 1, 2].map(|c| -(BIAS_PER_D - l) * b[c] - BIAS_PER_D * p[c])
+                })
                 .collect()
         };
+        let p = photons.as_ref();
         Some(Parts {
             mean: mix(&x.mean, d.as_ref().map(|d| &d.mean)),
             noise: mix(&x.dev, d.as_ref().map(|d| &d.dev)),
-            bias: d.as_ref().map(|d| (scale(&d.mean), scale(&d.dev))),
+            bias: d.as_ref().map(|d| {
+                let b = bias(&d.mean, p.map(|p| &p.mean));
+                (b, bias(&d.dev, p.map(|p| &p.dev)))
+            }),
         })
     }
 
@@ -281,12 +305,11 @@ impl Film {
         (px, bl)
     }
 
-    /// Each pixel's signed bias estimate, -K D (radiance units, RGB), of the image at the
-    /// fixed bandwidth; None until the noise can be estimated or where the nested sums
-    /// are missing.
+    /// Each pixel's signed bias estimate, -K D of the beams' and the photons' nested sums
+    /// (radiance units, RGB), of the image at the fixed bandwidth; None until the noise
+    /// can be estimated or where the beams' nested sums are missing.
     pub fn bias_map(&self) -> Option<Vec<[f64; 3]>> {
-        let d = self.resolve(Bandwidth::Fixed)?.d?;
-        Some(d.mean.iter().map(|v| v.map(|c| -BIAS_PER_D * c)).collect())
+        Some(self.parts(Bandwidth::Fixed)?.bias?.0)
     }
 
     /// Each pixel's lambda in the image `bandwidth` resolves: the weight of the r/2 kernel
@@ -623,7 +646,7 @@ mod tests {
         let e = f.error_estimate(Bandwidth::Fixed).unwrap();
         let bias = e.bias.unwrap().pixel;
         assert!(bias < 0.35 * e.noise.pixel, "{e:?}");
-        let d = f.moments(true).unwrap();
+        let d = f.moments(&f.nested).unwrap();
         let lambda = lambdas(&d, 64, 64);
         let mean = lambda.iter().sum::<f64>() / lambda.len() as f64;
         assert!(mean < 0.08, "mean lambda {mean}");

@@ -9,9 +9,10 @@
 //! Beside the sums of all passes the film keeps those of the odd passes (those of
 //! odd-numbered groups where passes share samples, `plan::Plan::group`): two interleaved
 //! half-films, whose difference is the reference-free noise estimate of [`error`]. And
-//! beside the image it keeps the nested sums: the beam estimate at half the radius minus
-//! the one at the radius (`estimate::eq2::Nested`), whose mean estimates the kernel's
-//! bias and lets [`error`] choose a radius per pixel.
+//! beside the image it keeps the nested sums, the beams' and the surface photons' apart:
+//! the estimate at half the radius minus the one at the radius (`core::Nested`), whose
+//! mean estimates the kernel's bias; the beams' also let [`error`] choose a radius per
+//! pixel.
 pub mod error;
 
 use crate::core::Rgb;
@@ -87,8 +88,10 @@ pub struct Film {
     pub width: u32,
     pub height: u32,
     image: Halves,
-    /// Sums of the nested half-radius difference.
+    /// Sums of the beams' nested half-radius difference (the adaptive bandwidth's D).
     nested: Halves,
+    /// Sums of the surface photons' nested difference (in the bias estimate only).
+    photons: Halves,
     counts: Counts,
     /// Alpha sums (a transparent film), else empty.
     alpha: Vec<i128>,
@@ -114,6 +117,7 @@ impl Film {
             height,
             image: Halves::new(pixels),
             nested: Halves::new(pixels),
+            photons: Halves::new(pixels),
             counts: Counts::default(),
             alpha: Vec::new(),
             lights: Vec::new(),
@@ -145,10 +149,12 @@ impl Film {
         counts: Counts,
         image: Halves,
         nested: Halves,
+        photons: Halves,
     ) -> Option<Self> {
         let n = (width as usize) * (height as usize);
         let ok = image.matches(n)
             && nested.matches(n)
+            && photons.matches(n)
             && counts.odd <= counts.passes
             && counts.nested <= counts.passes;
         ok.then_some(Film {
@@ -156,6 +162,7 @@ impl Film {
             height,
             image,
             nested,
+            photons,
             counts,
             alpha: Vec::new(),
             lights: Vec::new(),
@@ -201,9 +208,14 @@ impl Film {
         &self.image
     }
 
-    /// The nested half-radius difference's sums.
+    /// The beams' nested half-radius difference's sums.
     pub fn nested_sums(&self) -> &Halves {
         &self.nested
+    }
+
+    /// The surface photons' nested difference's sums.
+    pub fn photon_sums(&self) -> &Halves {
+        &self.photons
     }
 
     pub fn counts(&self) -> Counts {
@@ -223,10 +235,17 @@ impl Film {
         self.counts.odd += u32::from(odd);
     }
 
-    /// Adds the current pass's nested half-radius difference (once per pass) and counts it.
+    /// Adds the current pass's beams' nested half-radius difference (once per pass) and
+    /// counts it.
     pub fn add_nested(&mut self, odd: bool, d: &[Rgb]) {
         self.nested.add(odd, d);
         self.counts.nested += 1;
+    }
+
+    /// Adds the current pass's surface photons' nested difference (every pass has one,
+    /// from its camera paths).
+    pub fn add_photon_nested(&mut self, odd: bool, d: &[Rgb]) {
+        self.photons.add(odd, d);
     }
 
     /// Adds another film's sums and passes (same size); the result does not depend on
@@ -235,6 +254,7 @@ impl Film {
         debug_assert_eq!((self.width, self.height), (other.width, other.height));
         self.image.merge(&other.image);
         self.nested.merge(&other.nested);
+        self.photons.merge(&other.photons);
         if self.alpha.is_empty() {
             self.alpha = vec![0; other.alpha.len()];
         }

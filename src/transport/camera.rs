@@ -15,7 +15,7 @@ use super::SurfaceEstimate;
 use super::{timed, Counters};
 use crate::bsdf;
 use crate::core::Ray;
-use crate::core::Rgb;
+use crate::core::{Nested, Rgb};
 use crate::geometry::{Geometry, Hit, EPS};
 use crate::media::Media;
 use crate::sampling::{Rng, Stream};
@@ -33,6 +33,8 @@ struct Out<'a> {
     pixel: u32,
     segments: &'a mut Vec<Secondary>,
     alpha: f32,
+    /// The photon estimates' nested half-radius difference, weighted like their radiance.
+    nested: Rgb,
 }
 
 #[derive(Clone, Copy)]
@@ -193,6 +195,8 @@ pub struct Secondary {
 pub struct CameraPass {
     /// Radiance of every pixel except the beam estimate (emitters, photons).
     pub image: Vec<Rgb>,
+    /// The photon estimates' nested half-radius difference per pixel.
+    pub nested: Vec<Rgb>,
     /// Alpha of every pixel with a transparent film (else empty).
     pub alpha: Vec<f32>,
     /// One per pixel, row-major.
@@ -300,7 +304,7 @@ impl CameraTracer<'_> {
             None => (None, Vec::new()),
         };
         rows_mut.resize_with(h, || None);
-        type Row = (Vec<(Rgb, Primary, f32)>, Vec<Secondary>, Counters);
+        type Row = (Vec<(Rgb, Primary, f32, Rgb)>, Vec<Secondary>, Counters);
         let rows: Vec<Row> = rows_mut
             .into_par_iter()
             .enumerate()
@@ -333,9 +337,10 @@ impl CameraTracer<'_> {
                             pixel: idx as u32,
                             segments: &mut secondary,
                             alpha: 1.0,
+                            nested: Rgb::ZERO,
                         };
                         let (l, p) = self.radiance(ray, &mut rng, &mut c, strat, &mut out);
-                        (l, p, out.alpha)
+                        (l, p, out.alpha, out.nested)
                     })
                     .collect();
                 (row, secondary, c)
@@ -343,14 +348,16 @@ impl CameraTracer<'_> {
             .collect();
         let mut pass = CameraPass {
             image: Vec::with_capacity(w * h),
+            nested: Vec::with_capacity(w * h),
             alpha: Vec::new(),
             primaries: Vec::with_capacity(w * h),
             secondary: Vec::new(),
             counters: Counters::default(),
         };
         for (row, secondary, c) in rows {
-            for (l, p, a) in row {
+            for (l, p, a, d) in row {
                 pass.image.push(l);
+                pass.nested.push(d);
                 pass.primaries.push(p);
                 if self.transparent {
                     pass.alpha.push(a);
@@ -418,7 +425,9 @@ impl CameraTracer<'_> {
             };
             let material = h.material;
             if let Material::Lambert { reflectance } = material {
-                l += st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
+                let lo = st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
+                l += lo.l;
+                out.nested += lo.d;
                 break;
             }
             st.depth += 1;
@@ -534,8 +543,8 @@ impl CameraTracer<'_> {
         l / (n * n) as f32
     }
 
-    /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate plus,
-    /// in the hybrid method, direct light by a shadow ray.
+    /// Radiance leaving a diffuse hit towards the camera: the photon maps' estimate (with
+    /// its nested difference) plus, in the hybrid method, direct light by a shadow ray.
     fn diffuse(
         &self,
         h: &Hit,
@@ -543,13 +552,13 @@ impl CameraTracer<'_> {
         reflectance: Rgb,
         rng: &mut Rng,
         c: &mut Counters,
-    ) -> Rgb {
+    ) -> Nested {
         let n = if dir.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
         let mut lo = self
             .photons
             .radiance(h.p, n, reflectance, &mut c.photon_lookups);
         if let Some(d) = &self.direct {
-            lo += d.at_surface(h.p, n, reflectance, rng, c);
+            lo.l += d.at_surface(h.p, n, reflectance, rng, c);
         }
         lo
     }

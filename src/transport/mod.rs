@@ -12,15 +12,16 @@ pub mod transmittance;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::core::Rgb;
+use crate::core::{Nested, Rgb};
 
 /// Radiance leaving a diffuse point from light stored on surfaces, which camera paths ask
 /// for at their diffuse end. The photon maps (`estimate::photons::Photons`) answer it;
 /// camera tracing does not know how the light is stored.
 pub trait SurfaceEstimate: Sync {
     /// Radiance towards the camera at `x` (normal `n` on the camera's side, Lambert
-    /// reflectance `rho`), counting the photons looked at in `lookups`.
-    fn radiance(&self, x: Vec3, n: Vec3, rho: Rgb, lookups: &mut u64) -> Rgb;
+    /// reflectance `rho`) with its nested half-radius difference, counting the photons
+    /// looked at in `lookups`.
+    fn radiance(&self, x: Vec3, n: Vec3, rho: Rgb, lookups: &mut u64) -> Nested;
 }
 
 /// A photon beam (Jarosz et al. 2011, "short beam"): the stretch of a light path inside
