@@ -219,7 +219,10 @@ pub const DEFAULT_PHOTON_ALPHA: f32 = 0.9;
 /// cuts cloud-hg's error by 9 % and leaves fog-box and smoke-grid within their noise.
 pub const AUTO_BEAM_PIXELS: f32 = 2.0;
 /// Auto photon radius R1, in pixel footprints at the distance of the surfaces' centre.
-pub const AUTO_PHOTON_PIXELS: f32 = 3.0;
+/// Measured on glass-caustic's caustic at 60 and 300 s (docs/benchmarks.md, "Radius
+/// schedules"): 1.5 beat 2 and 2 beat 3 on both metrics, the rim's blur costing more than
+/// the noise a wider kernel saves.
+pub const AUTO_PHOTON_PIXELS: f32 = 1.5;
 /// R1 of the smooth photons (after a diffuse or medium scattering) over the photon radius
-/// R1 (docs/benchmarks.md: measured at equal time).
-pub const SMOOTH_PHOTON_SCALE: f32 = 5.0;
+/// R1: 15 pixels (docs/benchmarks.md: measured at equal time).
+pub const SMOOTH_PHOTON_SCALE: f32 = 10.0;

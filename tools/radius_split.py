@@ -4,8 +4,8 @@ For each scene and each value of one schedule key, `ppb render --time T` renders
 the scene (beside the original, so its relative paths hold) with every radius set
 explicitly to the auto value and the swept key changed:
 - beam_radius, photon_radius, smooth_photon_radius: a multiple of the auto R1 (the beams'
-  2 pixels at the medium, the sharp photons' 3 pixels at the floor, the smooth ones 5 times
-  that);
+  2 pixels at the medium, the sharp photons' 1.5 pixels at the floor, the smooth ones 10
+  times that);
 - alpha (the beams'), photon_alpha: the value itself.
 The image is compared with the reference per pixel and on 4x4 block means (`ppb compare`,
 without the emitter mask's pixels where the scene has one, as the estimate leaves them
@@ -28,9 +28,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENES = ["fog-box", "smoke-grid", "cloud-hg", "glass-caustic", "cloud-sky"]
 RADII = ["beam_radius", "photon_radius", "smooth_photon_radius"]
 KEYS = RADII + ["alpha", "photon_alpha"]
-# settings::SMOOTH_PHOTON_SCALE: the smooth photons' auto R1 over the sharp ones'.
-SMOOTH_SCALE = 5.0
-
 
 def reference_noise(scene):
     """The reference's own rel_l1 (per pixel, 4x4), outside its emitter mask if it says."""
@@ -86,7 +83,7 @@ def main():
             probe = render(a.ppb, src, os.path.join(tmp, "probe.exr"), os.path.join(tmp, "probe.json"),
                            ["--passes", "1"])
             auto = {"beam_radius": probe["beam_r1"], "photon_radius": probe["photon_r1"],
-                    "smooth_photon_radius": probe["photon_r1"] * SMOOTH_SCALE}
+                    "smooth_photon_radius": probe["smooth_photon_r1"]}
             ref = reference_noise(scene)
             for v in [float(x) for x in a.values.split(",")]:
                 values = dict(auto)

@@ -152,6 +152,7 @@ struct Stats {
     light_paths: usize,
     beam_r1: f32,
     photon_r1: f32,
+    smooth_photon_r1: f32,
     seconds: SecondsSplit,
     counters: Counters,
     /// "cpu" or the adapter.
@@ -878,6 +879,7 @@ fn write_stats(
         light_paths: settings.light_paths,
         beam_r1: t.beam_r1,
         photon_r1: t.photon_r1,
+        smooth_photon_r1: t.smooth_photon_r1,
         seconds: SecondsSplit::new(
             start.elapsed().as_secs_f64(),
             &session.counters,
