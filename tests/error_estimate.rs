@@ -11,7 +11,7 @@ use ppb::output::{read_exr, read_exr_text, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
-use ppb::settings::{Bandwidth, Radius, RenderSettings, TrMode};
+use ppb::settings::{Bandwidth, Radius, RenderSettings, TrMode, AUTO_PHOTON_PIXELS};
 
 fn data(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -235,13 +235,13 @@ fn bias_along_its_own_direction(what: &str, one: &Film, two: &Film, reference: &
 }
 
 /// The same for the surface photons' kernels: glass-caustic with the sharp photons' R1 at
-/// 15 pixels (10 times the auto radius), so their blur of the caustic's rim dominates the
+/// 15 pixels, whatever the auto radius, so their blur of the caustic's rim dominates the
 /// floor's error.
 #[test]
 fn bias_estimate_has_the_measured_sign_and_size_at_a_caustic_rim() {
     let reference = read_exr(&data("tests/data/conformance/glass-caustic/reference.exr")).unwrap();
     let widen = |s: &mut RenderSettings, t: &Tracer| {
-        s.photon_radius = Radius::Fixed(10.0 * t.photon_r1);
+        s.photon_radius = Radius::Fixed(15.0 / AUTO_PHOTON_PIXELS * t.photon_r1);
         s.smooth_photon_radius = Radius::Fixed(t.smooth_photon_r1);
     };
     let scene = "scenes/conformance/glass-caustic/scene.toml";
