@@ -22,7 +22,9 @@
 #
 # The full check refuses a software adapter (lavapipe, llvmpipe: their times say nothing
 # about a GPU) unless ALLOW_SOFTWARE=1. Environment: OUT (default out/gpu_check), PPB
-# (default target/release/ppb).
+# (default target/release/ppb), GPU_TESTS: a prebuilt `tests/gpu.rs` binary (from `cargo test
+# --release --test gpu --no-run`). With GPU_TESTS set, step 1 is skipped and step 2 runs that
+# binary: the lent machine has no Rust, so both binaries are built here and carried.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 
@@ -30,7 +32,7 @@ QUICK=0
 case "${1:-}" in
   --quick) QUICK=1 ;;
   "") ;;
-  -h | --help) sed -n '2,22p' "$0"; exit 0 ;;
+  -h | --help) sed -n '2,27p' "$0"; exit 0 ;;
   *) echo "gpu_check: unknown argument $1 (--quick or nothing)" >&2; exit 2 ;;
 esac
 OUT=${OUT:-out/gpu_check}
@@ -65,8 +67,12 @@ step() {
   fi
 }
 
-step build cargo build --release
-step gpu-tests env PPB_REQUIRE_GPU=1 cargo test --release --test gpu
+if [ -n "${GPU_TESTS:-}" ]; then
+  step gpu-tests env PPB_REQUIRE_GPU=1 "$GPU_TESTS"
+else
+  step build cargo build --release
+  step gpu-tests env PPB_REQUIRE_GPU=1 cargo test --release --test gpu
+fi
 
 SCENES=(scenes/conformance/smoke-grid/scene.toml scenes/bench/dense-smoke/scene.toml)
 # Runs per scene. The quick check leaves out the dense smoke with transmittance tracked on
