@@ -26,8 +26,9 @@ enum Command {
         long_about = "Render a TOML scene file progressively and write an EXR (float32 linear \
 RGB, with passes, seconds and settings in the header) and a PNG preview beside it.\n\n\
 Radii: `beam_radius = \"auto\"` sets R1 to 2 pixel footprints at the distance from the camera to \
-the centre of the media's bounds; `photon_radius = \"auto\"` sets R1 to 3 pixel footprints at the \
-distance to the centre of the surfaces' bounds. Both then shrink every pass by eq. 3 \
+the centre of the media's bounds; `photon_radius = \"auto\"` sets the sharp photons' R1 (direct light, caustics) to 1.5 \
+pixel footprints at the distance to the centre of the surfaces' bounds, and the smooth photons' \
+to 10 times that. Both then shrink every pass by eq. 3 \
 (beam radius, and photon radius squared, times (i + alpha) / (i + 1)).",
         after_help = "Examples:\n  ppb render scenes/conformance/fog-box/scene.toml -o out/fog-box.exr\n  ppb render scenes/conformance/smoke-grid/scene.toml --time 60 --stats out/stats.json\n  ppb render scenes/mantaflow/smoke.toml --frames 16,32,48 -o out/smoke.####.exr"
     )]
@@ -187,6 +188,11 @@ fn main() -> ExitCode {
         Command::Render(_) | Command::Watch(_) | Command::BenchGpu(_)
     ) {
         private_runtime_dir();
+    }
+    // A wrong PPB_SIMD is bad input, told before any work, not a silent fallback.
+    if let Err(e) = ppb::core::simd::Isa::from_env() {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
     }
     let result = match cli.command {
         Command::Render(args) => app::render(args),

@@ -146,6 +146,7 @@ fn splat_finds_every_pair_the_gather_finds() {
                 &t.beams,
                 t.beam_radius,
                 r.media(),
+                ppb::core::simd::isa(),
             );
             let map = BeamMap::build(&t.beams, t.beam_radius);
             let media = r.media();

@@ -157,6 +157,9 @@ struct Stats {
     counters: Counters,
     /// "cpu" or the adapter.
     device: String,
+    /// The instruction set of the CPU's wide loops (`core::simd`): "scalar", "avx2" or
+    /// "avx512".
+    simd: &'static str,
     gpu: Option<GpuStats>,
     /// The image's expected rel_l1 from its converged mean (its noise), per pixel and on
     /// 4x4 block means; null before each half-film holds 2 passes.
@@ -887,6 +890,7 @@ fn write_stats(
         ),
         counters: session.counters,
         device: session.device(),
+        simd: ppb::core::simd::isa().name(),
         gpu: session.gpu_stats(),
         estimated_rel_l1,
     };

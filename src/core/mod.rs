@@ -5,6 +5,7 @@
 pub mod frames;
 pub mod fs;
 pub mod ray;
+pub mod simd;
 
 pub use ray::{ray_box, slab, Ray};
 

@@ -7,6 +7,7 @@ use std::time::Instant;
 use super::beams::BeamMap;
 use super::splat::splat;
 use super::{Estimator, TracedPass, View};
+use crate::core::simd;
 use crate::core::Nested;
 use crate::core::Rgb;
 use crate::error::Result;
@@ -65,7 +66,8 @@ pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
     if media.is_empty() || beams.is_empty() {
         return (vec![Nested::default(); pixels], 0);
     }
-    let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media);
+    let isa = simd::isa();
+    let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media, isa);
     if let Some(map) = &t.beam_map {
         let per_segment: Vec<(Nested, u64)> = pass
             .secondary

@@ -99,7 +99,7 @@ pub fn term(
 /// the kernel is twice as high: the same pair's term at r/2 is 2 l or nothing.
 pub fn nested_term(
     ray: &Ray,
-    (t0, t1): (f32, f32),
+    span: (f32, f32),
     piece: &BeamPiece,
     r: f32,
     in_scatter: impl Fn(Vec3, f32) -> Rgb,
@@ -107,15 +107,29 @@ pub fn nested_term(
 ) -> Option<(Rgb, bool)> {
     let psi = Vec3::from(piece.dir);
     let c = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi)?;
+    counts(&c, span, piece, r).then(|| counted_term(ray, &c, piece, r, in_scatter, tr))
+}
+
+/// The edge rule of [`nested_term`] for a crossing of the segment `span`.
+pub fn counts(c: &Crossing, (t0, t1): (f32, f32), piece: &BeamPiece, r: f32) -> bool {
     // `&`, not `&&`: one hard-to-predict branch for the pair instead of five.
-    let counts =
-        (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (piece.s0 <= c.s) & (c.s < piece.s1);
-    if !counts {
-        return None;
-    }
+    (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (piece.s0 <= c.s) & (c.s < piece.s1)
+}
+
+/// [`nested_term`] of a crossing that counts: the part past the edge rule, which the wide
+/// crossing tests (`estimate::lanes`) share.
+pub fn counted_term(
+    ray: &Ray,
+    c: &Crossing,
+    piece: &BeamPiece,
+    r: f32,
+    in_scatter: impl Fn(Vec3, f32) -> Rgb,
+    tr: impl Fn(f32) -> f32,
+) -> (Rgb, bool) {
+    let psi = Vec3::from(piece.dir);
     let f = in_scatter(ray.at(c.t), psi.dot(-ray.d));
     let l = f * Vec3::from(piece.power) * (kernel(c.dist2, r) * tr(c.t) / c.sin2.sqrt());
-    Some((l, 4.0 * c.dist2 < r * r))
+    (l, 4.0 * c.dist2 < r * r)
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@
 pub mod beams;
 pub mod cpu;
 pub mod eq2;
+pub mod lanes;
 pub mod photons;
 pub mod radius;
 pub mod splat;

@@ -9,7 +9,9 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::eq2::{nested_term, BeamPiece};
+use super::eq2::{counted_term, BeamPiece, Crossing};
+use super::lanes::{Fixed, Rays};
+use crate::core::simd::Isa;
 use crate::core::Nested;
 use crate::core::Ray;
 use crate::core::Rgb;
@@ -25,13 +27,15 @@ const NEAR: f32 = 1e-3;
 
 /// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance
 /// (with its nested half-radius difference) and the number of kernel evaluations that
-/// contributed.
+/// contributed. `isa` tests a row's pixels for a beam that many at a time; every choice
+/// gives the same bits.
 pub fn splat(
     cam: &Pinhole,
     primaries: &[Primary],
     beams: &[Beam],
     radius: f32,
     media: &Media,
+    isa: Isa,
 ) -> (Vec<Nested>, u64) {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let bands = h.div_ceil(BAND);
@@ -51,6 +55,7 @@ pub fn splat(
         }
     }
     let origin = cam.origin();
+    let rays = Rays::new(primaries.iter().map(|p| (p.dir, p.t_surf)));
     let results: Vec<(Vec<Nested>, u64)> = per_band
         .par_iter()
         .enumerate()
@@ -64,17 +69,17 @@ pub fn splat(
                     continue;
                 };
                 let piece = BeamPiece::whole(&beams[bi as usize], bi);
+                let fixed = Fixed::new(origin, &piece, radius);
                 for y in row0..row0 + rows {
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {
                         continue;
                     };
-                    for x in x0..=x1 {
-                        let p = &primaries[y * w + x];
-                        if let Some(l) = contribution(origin, p, &piece, radius, media) {
-                            img[(y - row0) * w + x].add(l);
-                            evals += 1;
-                        }
-                    }
+                    let pixels = y * w + x0..y * w + x1 + 1;
+                    fixed.for_each_counted(isa, &rays, pixels, |i, c| {
+                        let l = contribution(origin, &primaries[i], &piece, c, radius, media);
+                        img[i - row0 * w].add(l);
+                        evals += 1;
+                    });
                 }
             }
             (img, evals)
@@ -89,18 +94,18 @@ pub fn splat(
     (img, evals)
 }
 
-/// Eq. 2 for one beam and one primary segment [0, t_surf), or None when the pair does not
-/// count (the rule of [`nested_term`]).
+/// Eq. 2 for one beam and one primary segment [0, t_surf) whose crossing `c` counts.
 fn contribution(
     o: Vec3,
     p: &Primary,
     beam: &BeamPiece,
+    c: &Crossing,
     r: f32,
     media: &Media,
-) -> Option<(Rgb, bool)> {
+) -> (Rgb, bool) {
     let ray = Ray::new(o, p.dir);
     let scatter = |x, cos| media.in_scatter(x, cos);
-    nested_term(&ray, (0.0, p.t_surf), beam, r, scatter, |t| {
+    counted_term(&ray, c, beam, r, scatter, |t| {
         camera_tr(media, &ray, &p.tr, t)
     })
 }
