@@ -8,7 +8,9 @@ use glam::{Vec3, Vec3A};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, bvh2::Bvh2, BvhBuildParams};
 use std::time::Duration;
 
-use super::eq2::{nested_term, BeamPiece};
+use super::eq2::{counted_term, BeamPiece, Crossing};
+use super::lanes::Segment;
+use crate::core::simd;
 use crate::core::Nested;
 use crate::core::Ray;
 use crate::core::Rgb;
@@ -179,13 +181,14 @@ impl BeamMap {
             return sum;
         };
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
-        bvh.ray_traverse_anyhit(q, |_, id| {
-            let piece = &self.pieces[id];
-            if let Some(l) = nested_term(ray, (t0, t1), piece, self.radius, &in_scatter, &tr) {
-                *evaluations += 1;
-                sum.add(l);
-            }
-        });
+        let r = self.radius;
+        let visit = |piece: &BeamPiece, c: &Crossing| {
+            *evaluations += 1;
+            sum.add(counted_term(ray, c, piece, r, &in_scatter, &tr));
+        };
+        let mut segment = Segment::new(simd::isa(), ray, (t0, t1), r, &self.pieces[0], visit);
+        bvh.ray_traverse_anyhit(q, |_, id| segment.push(&self.pieces[id]));
+        segment.finish();
         sum
     }
 }

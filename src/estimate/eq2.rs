@@ -43,6 +43,7 @@ pub fn kernel(d2: f32, r: f32) -> f32 {
 }
 
 /// Closest approach of a camera ray and a beam line.
+#[derive(Clone, Copy, Debug, Default)]
 pub struct Crossing {
     /// Parameter on the camera ray.
     pub t: f32,
@@ -57,18 +58,36 @@ pub struct Crossing {
 /// Where the lines o + t w and y + s psi (unit directions) come closest; None when they
 /// are parallel (sin^2 theta < 1e-10).
 pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
-    let b = w.dot(psi);
-    let sin2 = 1.0 - b * b;
-    if sin2 < 1e-10 {
-        return None;
+    let c = closest(o, w, y, psi);
+    if c.sin2 < 1e-10 {
+        None
+    } else {
+        Some(c)
     }
-    let w0 = o - y;
-    let d = w.dot(w0);
-    let e = psi.dot(w0);
+}
+
+/// [`crossing`] without its test for parallel lines (whose t, s and d^2 are then inf or
+/// NaN), on plain components: branch-free, so the wide tests (`estimate::lanes`) run it
+/// lane by lane. The dot products sum x, y, z in that order, as glam's.
+#[inline(always)]
+pub fn closest(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Crossing {
+    closest_xyz(o.into(), w.into(), y.into(), psi.into())
+}
+
+/// [`closest`] on arrays.
+#[inline(always)]
+pub fn closest_xyz(o: [f32; 3], w: [f32; 3], y: [f32; 3], psi: [f32; 3]) -> Crossing {
+    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let b = dot(w, psi);
+    let sin2 = 1.0 - b * b;
+    let w0 = [o[0] - y[0], o[1] - y[1], o[2] - y[2]];
+    let d = dot(w, w0);
+    let e = dot(psi, w0);
     let t = (b * e - d) / sin2;
     let s = (e - b * d) / sin2;
-    let dist2 = (w0 + w * t - psi * s).length_squared();
-    Some(Crossing { t, s, dist2, sin2 })
+    let v = [0, 1, 2].map(|i| w0[i] + w[i] * t - psi[i] * s);
+    let dist2 = dot(v, v);
+    Crossing { t, s, dist2, sin2 }
 }
 
 /// Eq. 2 for the camera segment [t0, t1) of `ray` and the beam stretch `piece`
@@ -107,13 +126,16 @@ pub fn nested_term(
 ) -> Option<(Rgb, bool)> {
     let psi = Vec3::from(piece.dir);
     let c = crossing(ray.o, ray.d, Vec3::from(piece.origin), psi)?;
-    counts(&c, span, piece, r).then(|| counted_term(ray, &c, piece, r, in_scatter, tr))
+    let ends = (piece.s0, piece.s1);
+    counts(&c, span, ends, r).then(|| counted_term(ray, &c, piece, r, in_scatter, tr))
 }
 
-/// The edge rule of [`nested_term`] for a crossing of the segment `span`.
-pub fn counts(c: &Crossing, (t0, t1): (f32, f32), piece: &BeamPiece, r: f32) -> bool {
+/// The edge rule of [`nested_term`] for a crossing of the segment `span` [t0, t1) and the
+/// piece [s0, s1).
+#[inline(always)]
+pub fn counts(c: &Crossing, (t0, t1): (f32, f32), (s0, s1): (f32, f32), r: f32) -> bool {
     // `&`, not `&&`: one hard-to-predict branch for the pair instead of five.
-    (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (piece.s0 <= c.s) & (c.s < piece.s1)
+    (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (s0 <= c.s) & (c.s < s1)
 }
 
 /// [`nested_term`] of a crossing that counts: the part past the edge rule, which the wide

@@ -1,14 +1,16 @@
-//! Eq. 2's crossing and edge rule ([`crossing`], [`counts`]) for one beam piece against a
-//! run of camera rays from one origin, many rays at once: the regular part of the splat,
-//! where most candidate pairs are rejected. Only the pairs that count go on to the
-//! scalar [`counted_term`](super::eq2::counted_term), with its lookups.
+//! Eq. 2's crossing and edge rule ([`closest`], [`counts`]) for many pairs at once: one
+//! beam piece against a run of camera rays from one origin (the splat's rows), or one
+//! camera segment against the pieces a BVH query returns (the gather). Most candidate
+//! pairs are rejected here; only those that count go on to the scalar
+//! [`counted_term`](super::eq2::counted_term), with its lookups.
 //!
-//! The lanes do the scalar [`crossing`]'s operations in its order, so every instruction
-//! set finds the same pairs with the same bits (`core::simd`).
+//! Each lane runs the scalar functions themselves, inlined, so every instruction set finds
+//! the same pairs with the same bits (`core::simd`).
 use glam::Vec3;
 
-use super::eq2::{counts, crossing, BeamPiece, Crossing};
+use super::eq2::{closest_xyz, counts, BeamPiece, Crossing};
 use crate::core::simd::Isa;
+use crate::core::Ray;
 
 /// Camera rays as structure of arrays: unit directions and the segment ends t1 of the
 /// segments [0, t1) (primary segments, indexed by pixel), followed by [`PAD`] rays that
@@ -21,57 +23,170 @@ pub struct Rays {
     pub t1: Vec<f32>,
 }
 
+/// The widest step's lane count.
+const PAD: usize = 16;
+
 impl Rays {
     pub fn new(segments: impl Iterator<Item = (Vec3, f32)>) -> Rays {
         let mut r = Rays::default();
-        for (d, t1) in segments {
+        let pad = std::iter::repeat_n((Vec3::ZERO, -1.0), PAD);
+        for (d, t1) in segments.chain(pad) {
             r.x.push(d.x);
             r.y.push(d.y);
             r.z.push(d.z);
             r.t1.push(t1);
         }
-        for _ in 0..PAD {
-            r.x.push(0.0);
-            r.y.push(0.0);
-            r.z.push(0.0);
-            r.t1.push(-1.0);
-        }
         r
-    }
-
-    fn dir(&self, i: usize) -> Vec3 {
-        Vec3::new(self.x[i], self.y[i], self.z[i])
     }
 }
 
-/// The widest step's lane count.
-const PAD: usize = 16;
+/// N pairs as structure of arrays: rays o + t w over [t0, t1), pieces y + s psi over
+/// [s0, s1).
+#[derive(Clone, Copy)]
+struct Pairs<const N: usize> {
+    o: [[f32; N]; 3],
+    w: [[f32; N]; 3],
+    y: [[f32; N]; 3],
+    psi: [[f32; N]; 3],
+    t: [[f32; N]; 2],
+    s: [[f32; N]; 2],
+}
 
-/// One beam piece seen from the rays' common origin: what every crossing shares.
+impl<const N: usize> Pairs<N> {
+    fn zero() -> Self {
+        let z = [0.0; N];
+        Pairs {
+            o: [z; 3],
+            w: [z; 3],
+            y: [z; 3],
+            psi: [z; 3],
+            t: [z; 2],
+            s: [z; 2],
+        }
+    }
+
+    /// Lane k: ray `o`, `w` over `span`.
+    #[inline(always)]
+    fn set_ray(&mut self, k: usize, o: Vec3, w: Vec3, span: (f32, f32)) {
+        for i in 0..3 {
+            (self.o[i][k], self.w[i][k]) = (o[i], w[i]);
+        }
+        (self.t[0][k], self.t[1][k]) = span;
+    }
+
+    /// Lane k: piece `p`.
+    #[inline(always)]
+    fn set_piece(&mut self, k: usize, p: &BeamPiece) {
+        for i in 0..3 {
+            (self.y[i][k], self.psi[i][k]) = (p.origin[i], p.dir[i]);
+        }
+        (self.s[0][k], self.s[1][k]) = (p.s0, p.s1);
+    }
+
+    /// Lane k's pair: whether it counts ([`crate::estimate::eq2::crossing`]'s test for
+    /// parallel lines, then [`counts`]), and its crossing.
+    #[inline(always)]
+    fn test(&self, k: usize, r: f32) -> (bool, Crossing) {
+        let at = |v: &[[f32; N]; 3]| [v[0][k], v[1][k], v[2][k]];
+        let c = closest_xyz(at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
+        let (span, ends) = ((self.t[0][k], self.t[1][k]), (self.s[0][k], self.s[1][k]));
+        ((c.sin2 >= 1e-10) & counts(&c, span, ends, r), c)
+    }
+}
+
+/// The crossings of N pairs, lane by lane, and a bit per pair that counts.
+struct Lanes<const N: usize> {
+    mask: u32,
+    t: [f32; N],
+    s: [f32; N],
+    dist2: [f32; N],
+    sin2: [f32; N],
+}
+
+impl<const N: usize> Lanes<N> {
+    /// Tests the pairs that `fill` writes.
+    #[inline(always)]
+    fn test(fill: impl FnOnce(&mut Pairs<N>), r: f32) -> Lanes<N> {
+        let mut pairs = Pairs::zero();
+        fill(&mut pairs);
+        let z = [0.0; N];
+        let mut out = Lanes {
+            mask: 0,
+            t: z,
+            s: z,
+            dist2: z,
+            sin2: z,
+        };
+        // The mask is built in a second loop: folded into this one, it kept LLVM from
+        // vectorising the lanes.
+        let mut ok = [false; N];
+        #[allow(clippy::needless_range_loop)] // one index over six arrays
+        for k in 0..N {
+            let c;
+            (ok[k], c) = pairs.test(k, r);
+            (out.t[k], out.s[k], out.dist2[k], out.sin2[k]) = (c.t, c.s, c.dist2, c.sin2);
+        }
+        for (k, ok) in ok.into_iter().enumerate() {
+            out.mask |= (ok as u32) << k;
+        }
+        out
+    }
+
+    /// Calls `visit(k, crossing)` for the lanes that count and `keep` keeps, in lane order.
+    fn visit(&self, keep: u32, mut visit: impl FnMut(usize, &Crossing)) {
+        let mut mask = self.mask & keep;
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let c = Crossing {
+                t: self.t[k],
+                s: self.s[k],
+                dist2: self.dist2[k],
+                sin2: self.sin2[k],
+            };
+            visit(k, &c);
+        }
+    }
+}
+
+/// The lanes that a step of `n` lanes keeps when `left` pairs are left.
+fn keep(left: usize) -> u32 {
+    if left >= 32 {
+        u32::MAX
+    } else {
+        (1u32 << left) - 1
+    }
+}
+
+/// Runs `step(at, lanes)` over `0..len` in `isa`'s steps (8 or 16 lanes; AVX-512 takes 8
+/// when no more are left) and returns where the scalar rest starts.
+fn wide_steps(isa: Isa, len: usize, mut step: impl FnMut(usize, usize)) -> usize {
+    if isa == Isa::Scalar {
+        return 0;
+    }
+    let mut at = 0;
+    while at < len {
+        let n = if isa == Isa::Avx512 && len - at > 8 {
+            16
+        } else {
+            8
+        };
+        step(at, n);
+        at += n;
+    }
+    len
+}
+
+/// One beam piece seen from the rays' common origin (the splat).
 pub struct Fixed<'a> {
     o: Vec3,
     piece: &'a BeamPiece,
     r: f32,
-    y: Vec3,
-    psi: Vec3,
-    w0: Vec3,
-    e: f32,
 }
 
 impl<'a> Fixed<'a> {
     pub fn new(o: Vec3, piece: &'a BeamPiece, r: f32) -> Fixed<'a> {
-        let (y, psi) = (Vec3::from(piece.origin), Vec3::from(piece.dir));
-        let w0 = o - y;
-        let e = psi.dot(w0);
-        Fixed {
-            o,
-            piece,
-            r,
-            y,
-            psi,
-            w0,
-            e,
-        }
+        Fixed { o, piece, r }
     }
 
     /// Calls `visit(i, crossing)` for every ray i in `range` whose pair with the piece
@@ -84,128 +199,184 @@ impl<'a> Fixed<'a> {
         range: std::ops::Range<usize>,
         mut visit: impl FnMut(usize, &Crossing),
     ) {
-        let mut i = range.start;
-        let left = |i: usize| (range.end - i) as u32;
-        let keep = |i: usize| {
-            if left(i) >= 32 {
-                u32::MAX
-            } else {
-                (1u32 << left(i)) - 1
-            }
-        };
-        #[cfg(target_arch = "x86_64")]
-        match isa {
-            Isa::Avx512 | Isa::Avx2 => {
-                while i < range.end {
-                    // SAFETY: the set is only chosen where the CPU runs it (Isa::supported;
-                    // AVX-512 only with AVX2 too).
-                    if isa == Isa::Avx512 && left(i) > 8 {
-                        let (mask, lanes) = unsafe { avx512(self, rays, i) };
-                        lanes.visit(mask & keep(i), i, &mut visit);
-                        i += 16;
-                    } else {
-                        let (mask, lanes) = unsafe { avx2(self, rays, i) };
-                        lanes.visit(mask & keep(i), i, &mut visit);
-                        i += 8;
-                    }
-                }
-            }
-            Isa::Scalar => {}
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = (isa, keep);
-        for i in i..range.end {
-            if let Some(c) = self.scalar(rays, i) {
+        let (start, len) = (range.start, range.len());
+        let done = wide_steps(isa, len, |at, n| {
+            let i = start + at;
+            let v = |k: usize, c: &Crossing| visit(i + k, c);
+            // SAFETY: `wide_steps` takes n = 16 only for AVX-512 and n = 8 for AVX2 or
+            // AVX-512, which `Isa` chooses only where the CPU runs them (with AVX2).
+            unsafe { run(n, &Row(self, rays, i), self.r, keep(len - at), v) }
+        });
+        for i in start + done..range.end {
+            let mut p = Pairs::<1>::zero();
+            Row(self, rays, i).fill(&mut p);
+            let (ok, c) = p.test(0, self.r);
+            if ok {
                 visit(i, &c);
             }
         }
     }
+}
 
-    /// The one-pair reference: [`crossing`] and [`counts`] themselves.
-    fn scalar(&self, rays: &Rays, i: usize) -> Option<Crossing> {
-        let c = crossing(self.o, rays.dir(i), self.y, self.psi)?;
-        counts(&c, (0.0, rays.t1[i]), self.piece, self.r).then_some(c)
-    }
+/// What writes a step's pairs, for any lane count.
+trait Fill {
+    fn fill<const N: usize>(&self, p: &mut Pairs<N>);
+}
 
-    /// [`Self::scalar`] for the N rays from `at`: the crossings and a bit per ray that
-    /// counts. The same operations in the same order as [`crossing`] and [`counts`].
+/// The splat's pairs: the piece with rays `i..i + N`.
+struct Row<'a, 'b>(&'a Fixed<'b>, &'a Rays, usize);
+
+impl Fill for Row<'_, '_> {
     #[inline(always)]
-    fn lanes<const N: usize>(&self, rays: &Rays, at: usize) -> (u32, Lanes<N>) {
-        let lane = |v: &[f32]| -> [f32; N] { v[at..at + N].try_into().expect("N lanes") };
-        let (x, y, z, t1) = (lane(&rays.x), lane(&rays.y), lane(&rays.z), lane(&rays.t1));
-        let (psi, w0, e) = (self.psi, self.w0, self.e);
-        let (r2, s0, s1) = (self.r * self.r, self.piece.s0, self.piece.s1);
-        let mut out = Lanes::<N>::default();
-        let mut mask = 0u32;
+    fn fill<const N: usize>(&self, p: &mut Pairs<N>) {
+        let Row(f, rays, i) = *self;
+        let lanes = |v: &[f32]| -> [f32; N] { v[i..i + N].try_into().expect("N lanes") };
+        (p.w, p.t[1]) = (
+            [lanes(&rays.x), lanes(&rays.y), lanes(&rays.z)],
+            lanes(&rays.t1),
+        );
         for k in 0..N {
-            let b = (x[k] * psi.x) + (y[k] * psi.y) + (z[k] * psi.z);
-            let sin2 = 1.0 - b * b;
-            let d = (x[k] * w0.x) + (y[k] * w0.y) + (z[k] * w0.z);
-            let t = (b * e - d) / sin2;
-            let s = (e - b * d) / sin2;
-            let vx = (w0.x + x[k] * t) - psi.x * s;
-            let vy = (w0.y + y[k] * t) - psi.y * s;
-            let vz = (w0.z + z[k] * t) - psi.z * s;
-            let dist2 = (vx * vx) + (vy * vy) + (vz * vz);
-            let ok =
-                (sin2 >= 1e-10) & (dist2 < r2) & (0.0 <= t) & (t < t1[k]) & (s0 <= s) & (s < s1);
-            mask |= (ok as u32) << k;
-            (out.t[k], out.s[k], out.dist2[k], out.sin2[k]) = (t, s, dist2, sin2);
-        }
-        (mask, out)
-    }
-}
-
-/// The crossings of N rays, lane by lane.
-struct Lanes<const N: usize> {
-    t: [f32; N],
-    s: [f32; N],
-    dist2: [f32; N],
-    sin2: [f32; N],
-}
-
-impl<const N: usize> Default for Lanes<N> {
-    fn default() -> Self {
-        Lanes {
-            t: [0.0; N],
-            s: [0.0; N],
-            dist2: [0.0; N],
-            sin2: [0.0; N],
+            for a in 0..3 {
+                p.o[a][k] = f.o[a];
+            }
+            p.t[0][k] = 0.0;
+            p.set_piece(k, f.piece);
         }
     }
 }
 
-impl<const N: usize> Lanes<N> {
-    fn visit(&self, mut mask: u32, at: usize, visit: &mut impl FnMut(usize, &Crossing)) {
-        while mask != 0 {
-            let k = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            let c = Crossing {
-                t: self.t[k],
-                s: self.s[k],
-                dist2: self.dist2[k],
-                sin2: self.sin2[k],
-            };
-            visit(at + k, &c);
+/// The gather's pairs: the ray with the first N `pieces` (the first piece where fewer).
+struct Batch<'a> {
+    o: Vec3,
+    w: Vec3,
+    span: (f32, f32),
+    pieces: &'a [&'a BeamPiece],
+}
+
+impl Fill for Batch<'_> {
+    #[inline(always)]
+    fn fill<const N: usize>(&self, p: &mut Pairs<N>) {
+        for k in 0..N {
+            p.set_ray(k, self.o, self.w, self.span);
+            p.set_piece(k, self.pieces.get(k).unwrap_or(&self.pieces[0]));
         }
+    }
+}
+
+/// One camera segment against beam pieces (the gather): `push` the pieces a query
+/// returns, in its order, and `finish`; `visit` sees the ones that count in that order.
+pub struct Segment<'a, V: FnMut(&BeamPiece, &Crossing)> {
+    isa: Isa,
+    ray: &'a Ray,
+    span: (f32, f32),
+    r: f32,
+    batch: [&'a BeamPiece; PAD],
+    len: usize,
+    visit: V,
+}
+
+impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
+    /// `first` fills the batch's unused slots.
+    pub fn new(
+        isa: Isa,
+        ray: &'a Ray,
+        span: (f32, f32),
+        r: f32,
+        first: &'a BeamPiece,
+        visit: V,
+    ) -> Self {
+        Segment {
+            isa,
+            ray,
+            span,
+            r,
+            batch: [first; PAD],
+            len: 0,
+            visit,
+        }
+    }
+
+    pub fn push(&mut self, piece: &'a BeamPiece) {
+        self.batch[self.len] = piece;
+        self.len += 1;
+        let width = match self.isa {
+            Isa::Scalar => 1,
+            Isa::Avx2 => 8,
+            Isa::Avx512 => 16,
+        };
+        if self.len == width {
+            self.flush();
+        }
+    }
+
+    /// Tests what is left.
+    pub fn finish(mut self) {
+        self.flush();
+    }
+
+    fn flush(&mut self) {
+        let (len, batch, r) = (self.len, self.batch, self.r);
+        let (o, w, span) = (self.ray.o, self.ray.d, self.span);
+        self.len = 0;
+        let visit = &mut self.visit;
+        let done = wide_steps(self.isa, len, |at, n| {
+            let pieces = &batch[at..];
+            let v = |k: usize, c: &Crossing| visit(batch[at + k], c);
+            // SAFETY: as in `Fixed::for_each_counted`.
+            unsafe { run(n, &Batch { o, w, span, pieces }, r, keep(len - at), v) }
+        });
+        for &piece in &batch[done..len] {
+            let mut p = Pairs::<1>::zero();
+            let pieces = &[piece][..];
+            Batch { o, w, span, pieces }.fill(&mut p);
+            let (ok, c) = p.test(0, r);
+            if ok {
+                visit(piece, &c);
+            }
+        }
+    }
+}
+
+/// Tests the n = 8 or 16 pairs that `fill` writes on the instruction set of that width
+/// and visits those that count (and `keep` keeps) in lane order.
+///
+/// # Safety
+/// n = 8 needs AVX2, n = 16 AVX-512F.
+#[inline(always)]
+unsafe fn run(n: usize, fill: &impl Fill, r: f32, keep: u32, visit: impl FnMut(usize, &Crossing)) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if n == 16 {
+            // SAFETY: the caller's.
+            unsafe { avx512(fill, r) }.visit(keep, visit)
+        } else {
+            // SAFETY: the caller's.
+            unsafe { avx2(fill, r) }.visit(keep, visit)
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (n, fill, r, keep, visit);
+        unreachable!("wide steps only on x86_64")
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn avx2(f: &Fixed, rays: &Rays, at: usize) -> (u32, Lanes<8>) {
-    f.lanes::<8>(rays, at)
+fn avx2(fill: &impl Fill, r: f32) -> Lanes<8> {
+    Lanes::test(|p| fill.fill(p), r)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn avx512(f: &Fixed, rays: &Rays, at: usize) -> (u32, Lanes<16>) {
-    f.lanes::<16>(rays, at)
+fn avx512(fill: &impl Fill, r: f32) -> Lanes<16> {
+    Lanes::test(|p| fill.fill(p), r)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimate::eq2::crossing;
     use crate::sampling::Rng;
 
     /// Rays and a piece built so that a fair share of pairs count and many sit near an
@@ -239,8 +410,22 @@ mod tests {
         (o, rays, piece, r)
     }
 
-    /// Every instruction set this CPU runs finds the scalar reference's pairs, with the
-    /// same crossings bit for bit, over ranges that start and end off the lane grid.
+    /// The pairs `crate::estimate::eq2`'s scalar [`crossing`] and [`counts`] count, as
+    /// (index, crossing bits).
+    type Found = Vec<(usize, [u32; 4])>;
+
+    fn bits(i: usize, c: &Crossing) -> (usize, [u32; 4]) {
+        (i, [c.t, c.s, c.dist2, c.sin2].map(f32::to_bits))
+    }
+
+    fn scalar(o: Vec3, w: Vec3, span: (f32, f32), p: &BeamPiece, r: f32) -> Option<Crossing> {
+        let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
+        counts(&c, span, (p.s0, p.s1), r).then_some(c)
+    }
+
+    /// Every instruction set this CPU runs finds the scalar definition's pairs, with the
+    /// same crossings bit for bit: the splat's rows, over runs that start and end off the
+    /// lane grid, and the gather's batches, over queries of any length.
     #[test]
     fn every_isa_finds_the_scalar_pairs_bit_for_bit() {
         let mut rng = Rng::new(11, 0);
@@ -248,27 +433,52 @@ mod tests {
         for round in 0..400 {
             let n = 37 + round % 23;
             let (o, rays, piece, r) = case(&mut rng, n);
-            let fixed = Fixed::new(o, &piece, r);
             let range = (round % 5)..n - (round % 3);
-            let run = |isa| {
-                let mut got = Vec::new();
-                fixed.for_each_counted(isa, &rays, range.clone(), |i, c| {
-                    got.push((
-                        i,
-                        c.t.to_bits(),
-                        c.s.to_bits(),
-                        c.dist2.to_bits(),
-                        c.sin2.to_bits(),
-                    ))
-                });
-                got
-            };
-            let reference = run(Isa::Scalar);
-            counted += reference.len();
-            pairs += range.len();
+            let dir = |i: usize| Vec3::new(rays.x[i], rays.y[i], rays.z[i]);
+            let reference: Found = range
+                .clone()
+                .filter_map(|i| Some(bits(i, &scalar(o, dir(i), (0.0, rays.t1[i]), &piece, r)?)))
+                .collect();
+            // The gather: ray 0 against `m` pieces that pass within about r of it, near
+            // the ends of its span and of theirs.
+            let m = round % 40;
+            let mut u = || Vec3::new(rng.f32(), rng.f32(), rng.f32());
+            let others: Vec<BeamPiece> = (0..m)
+                .map(|_| {
+                    let (a, b) = (u(), u());
+                    let psi = (a * 2.0 - 1.0).normalize_or(Vec3::Z);
+                    let hit = o + dir(0) * (0.1 + 1.1 * rays.t1[0] * b.x) + (u() * 2.0 - 1.0) * r;
+                    BeamPiece {
+                        origin: (hit - psi * 1.2 * b.y).into(),
+                        dir: psi.into(),
+                        s0: 0.1 * b.z,
+                        s1: 1.0,
+                        ..piece
+                    }
+                })
+                .collect();
+            let span = (0.1, rays.t1[0]);
+            let gathered: Found = others
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| Some(bits(i, &scalar(o, dir(0), span, p, r)?)))
+                .collect();
             for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
-                assert_eq!(run(isa), reference, "round {round}, {isa:?}");
+                let mut got = Found::new();
+                let fixed = Fixed::new(o, &piece, r);
+                fixed.for_each_counted(isa, &rays, range.clone(), |i, c| got.push(bits(i, c)));
+                assert_eq!(got, reference, "row, round {round}, {isa:?}");
+                let mut got = Found::new();
+                let ray = Ray::new(o, dir(0));
+                let index = |p: &BeamPiece| others.iter().position(|q| std::ptr::eq(p, q));
+                let visit = |p: &BeamPiece, c: &Crossing| got.push(bits(index(p).unwrap(), c));
+                let mut segment = Segment::new(isa, &ray, span, r, &piece, visit);
+                others.iter().for_each(|p| segment.push(p));
+                segment.finish();
+                assert_eq!(got, gathered, "gather, round {round}, {isa:?}");
             }
+            counted += reference.len() + gathered.len();
+            pairs += range.len() + m;
         }
         // The cases exercise the rule: many pairs count, more do not.
         eprintln!("{counted} of {pairs} pairs counted");
