@@ -8,7 +8,7 @@
 //! the same pairs with the same bits (`core::simd`).
 use glam::Vec3;
 
-use super::eq2::{closest_xyz, counts, BeamPiece, Crossing};
+use super::eq2::{closest_xyz, counts, crossing, BeamPiece, Crossing};
 use crate::core::simd::Isa;
 use crate::core::Ray;
 
@@ -149,6 +149,12 @@ impl<const N: usize> Lanes<N> {
     }
 }
 
+/// One pair the scalar way: eq2's [`crossing`] and [`counts`] themselves.
+fn scalar(o: Vec3, w: Vec3, span: (f32, f32), p: &BeamPiece, r: f32) -> Option<Crossing> {
+    let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
+    counts(&c, span, (p.s0, p.s1), r).then_some(c)
+}
+
 /// The lanes that a step of `n` lanes keeps when `left` pairs are left.
 fn keep(left: usize) -> u32 {
     if left >= 32 {
@@ -208,10 +214,8 @@ impl<'a> Fixed<'a> {
             unsafe { run(n, &Row(self, rays, i), self.r, keep(len - at), v) }
         });
         for i in start + done..range.end {
-            let mut p = Pairs::<1>::zero();
-            Row(self, rays, i).fill(&mut p);
-            let (ok, c) = p.test(0, self.r);
-            if ok {
+            let w = Vec3::new(rays.x[i], rays.y[i], rays.z[i]);
+            if let Some(c) = scalar(self.o, w, (0.0, rays.t1[i]), self.piece, self.r) {
                 visit(i, &c);
             }
         }
@@ -326,11 +330,7 @@ impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
             unsafe { run(n, &Batch { o, w, span, pieces }, r, keep(len - at), v) }
         });
         for &piece in &batch[done..len] {
-            let mut p = Pairs::<1>::zero();
-            let pieces = &[piece][..];
-            Batch { o, w, span, pieces }.fill(&mut p);
-            let (ok, c) = p.test(0, r);
-            if ok {
+            if let Some(c) = scalar(o, w, span, piece, r) {
                 visit(piece, &c);
             }
         }
@@ -376,7 +376,6 @@ fn avx512(fill: &impl Fill, r: f32) -> Lanes<16> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimate::eq2::crossing;
     use crate::sampling::Rng;
 
     /// Rays and a piece built so that a fair share of pairs count and many sit near an
@@ -410,20 +409,15 @@ mod tests {
         (o, rays, piece, r)
     }
 
-    /// The pairs `crate::estimate::eq2`'s scalar [`crossing`] and [`counts`] count, as
-    /// (index, crossing bits).
+    /// Pairs that count, as (index, crossing bits).
     type Found = Vec<(usize, [u32; 4])>;
 
     fn bits(i: usize, c: &Crossing) -> (usize, [u32; 4]) {
         (i, [c.t, c.s, c.dist2, c.sin2].map(f32::to_bits))
     }
 
-    fn scalar(o: Vec3, w: Vec3, span: (f32, f32), p: &BeamPiece, r: f32) -> Option<Crossing> {
-        let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
-        counts(&c, span, (p.s0, p.s1), r).then_some(c)
-    }
-
-    /// Every instruction set this CPU runs finds the scalar definition's pairs, with the
+    /// Every instruction set this CPU runs finds the pairs of eq2's scalar [`crossing`] and
+    /// [`counts`] ([`scalar`]), with the
     /// same crossings bit for bit: the splat's rows, over runs that start and end off the
     /// lane grid, and the gather's batches, over queries of any length.
     #[test]
