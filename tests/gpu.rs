@@ -78,6 +78,7 @@ fn parity(
             "{scene} {primary:?} pass {i}: evaluations"
         );
         out.diff.add(&cpu, &gpu);
+        explain_off(&r, &t, &cpu, &gpu, &format!("{scene} {primary:?} pass {i}"));
         out.evaluations += evals;
         out.gpu_evaluations += gpu_evals;
         out.secondary += t.camera.secondary.len();
@@ -88,6 +89,47 @@ fn parity(
         d.rel_l1(), d.off_pixels, d.lit_pixels, out.evaluations, out.gpu_evaluations, out.secondary
     );
     Some(out)
+}
+
+/// Prints the first pixels that differ by more than `DeviceDiff`'s 1e-3 with the pairs each
+/// device counted there (the CPU's through the BVH gather): the same count points at
+/// arithmetic, another at a pair decided on the other side of an edge of the rule.
+fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what: &str) {
+    let top = cpu.iter().map(|c| c.max_element()).fold(0.0f32, f32::max);
+    let off = |(c, g): &(&Vec3, &[f32; 4])| {
+        (0..3).any(|k| (c[k] - g[k]).abs() > 1e-3 * c[k].abs().max(1e-3 * top))
+    };
+    let pixels: Vec<usize> = cpu
+        .iter()
+        .zip(gpu)
+        .enumerate()
+        .filter(|(_, p)| off(p))
+        .map(|(i, _)| i)
+        .take(5)
+        .collect();
+    if pixels.is_empty() {
+        return;
+    }
+    let (map, media) = (BeamMap::build(&t.beams, t.beam_radius), r.media());
+    let w = r.settings.width as usize;
+    for i in pixels {
+        let p = &t.camera.primaries[i];
+        let ray = Ray::new(r.camera().origin(), p.dir);
+        let mut pairs = 0;
+        let scatter = |x, cos| media.in_scatter(x, cos);
+        let tr = |tt| ppb::transport::transmittance::camera_tr(media, &ray, &p.tr, tt);
+        map.nested_radiance(&ray, (0.0, p.t_surf), scatter, tr, &mut pairs);
+        let secondary = t
+            .camera
+            .secondary
+            .iter()
+            .filter(|s| s.pixel as usize == i)
+            .count();
+        eprintln!(
+            "{what}: pixel ({}, {}) CPU {:?} from {pairs} primary pairs (+{secondary} secondary segments), GPU {:?} from {} pairs",
+            i % w, i / w, cpu[i], &gpu[i][..3], gpu[i][3]
+        );
+    }
 }
 
 /// Both ways of estimating primaries on `scene` against the CPU: the same image within
@@ -267,7 +309,9 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
     est.submit(&t, r.media()).expect("submit");
     let mut diff = DeviceDiff::default();
-    diff.add(&cpu, &est.read().expect("cloud-hg gathered").0);
+    let gpu = est.read().expect("cloud-hg gathered").0;
+    diff.add(&cpu, &gpu);
+    explain_off(&r, &t, &cpu, &gpu, "cloud-hg gathered");
     eprintln!(
         "cloud-hg gathered: rel_l1 against the CPU {:.2e}",
         diff.rel_l1()
