@@ -1,4 +1,4 @@
-//! Eq. 2's crossing and edge rule ([`closest`], [`counts`]) for many pairs at once: one
+//! Eq. 2's crossing and edge rule ([`closest_xyz`], [`counts`]) for many pairs at once: one
 //! beam piece against a run of camera rays from one origin (the splat's rows), or one
 //! camera segment against the pieces a BVH query returns (the gather). Most candidate
 //! pairs are rejected here; only those that count go on to the scalar
