@@ -43,7 +43,7 @@ pub fn kernel(d2: f32, r: f32) -> f32 {
 }
 
 /// Closest approach of a camera ray and a beam line.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub struct Crossing {
     /// Parameter on the camera ray.
     pub t: f32,
@@ -58,7 +58,7 @@ pub struct Crossing {
 /// Where the lines o + t w and y + s psi (unit directions) come closest; None when they
 /// are parallel (sin^2 theta < 1e-10).
 pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
-    let c = closest(o, w, y, psi);
+    let c = closest_xyz(o.into(), w.into(), y.into(), psi.into());
     if c.sin2 < 1e-10 {
         None
     } else {
@@ -69,12 +69,6 @@ pub fn crossing(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Option<Crossing> {
 /// [`crossing`] without its test for parallel lines (whose t, s and d^2 are then inf or
 /// NaN), on plain components: branch-free, so the wide tests (`estimate::lanes`) run it
 /// lane by lane. The dot products sum x, y, z in that order, as glam's.
-#[inline(always)]
-pub fn closest(o: Vec3, w: Vec3, y: Vec3, psi: Vec3) -> Crossing {
-    closest_xyz(o.into(), w.into(), y.into(), psi.into())
-}
-
-/// [`closest`] on arrays.
 #[inline(always)]
 pub fn closest_xyz(o: [f32; 3], w: [f32; 3], y: [f32; 3], psi: [f32; 3]) -> Crossing {
     let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];

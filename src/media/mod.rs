@@ -182,22 +182,6 @@ impl Media {
 
     /// sum_i sigma_s,i(p) * phase_i(cos): what a beam estimate multiplies by (1/(m sr)).
     pub fn in_scatter(&self, p: Vec3, cos_theta: f32) -> Rgb {
-        // Every counted beam pair asks, so a scene of one medium (a fog box, a cloud)
-        // skips the iterator chain: the same sum of one term.
-        let one = |s: f32, albedo: Rgb, phase: Phase| albedo * (s * phase.eval(cos_theta));
-        match (self.media.as_slice(), self.grids.as_slice()) {
-            ([m], []) if contains(&m.bounds, p) => return one(m.sigma_t, m.albedo, m.phase),
-            ([_], []) => return Vec3::ZERO,
-            ([], [g]) => {
-                let s = g.sigma_t(p);
-                return if s > 0.0 {
-                    one(s, g.albedo, g.phase)
-                } else {
-                    Vec3::ZERO
-                };
-            }
-            _ => {}
-        }
         self.components(p)
             .map(|(s, albedo, phase)| albedo * (s * phase.eval(cos_theta)))
             .fold(Vec3::ZERO, |a, b| a + b)

@@ -233,11 +233,6 @@ impl StratPixel<'_> {
 /// segment's `ray` to t, the homogeneous media's exact exp(-tau) times this pass's
 /// estimate `grids` of the density grids' share (`SegmentTr::eval`).
 pub fn camera_tr(media: &Media, ray: &Ray, grids: &SegmentTr, t: f32) -> f32 {
-    // Every counted beam pair asks. Without boxes the factor is exp(-0) = 1 exactly, so
-    // a grid scene skips the call to exp.
-    if media.media.is_empty() {
-        return grids.eval(t);
-    }
     (-media.optical_depth(ray, 0.0, t)).exp() * grids.eval(t)
 }
 
