@@ -89,8 +89,8 @@ fn active_min_max(g: &Grid) -> (f32, f32) {
     for (_, leaf) in g.leaves() {
         for n in 0..512 {
             if leaf.active[n / 64] >> (n % 64) & 1 == 1 {
-                lo = lo.min(leaf.values[n]);
-                hi = hi.max(leaf.values[n]);
+                lo = lo.min(leaf.value(n));
+                hi = hi.max(leaf.value(n));
             }
         }
     }
@@ -595,7 +595,7 @@ fn instanced_grid_with_every_linear_map() {
         for (origin, leaf) in original.leaves() {
             assert_eq!(
                 g.value(origin + IVec3::new(1, 2, 3)),
-                leaf.values[(8 + 2) * 8 + 3]
+                leaf.value((8 + 2) * 8 + 3)
             );
         }
         let d = load_grid(&path, "density").unwrap();

@@ -166,7 +166,7 @@ fn grid_meta(g: &GridMedium, data: &mut Vec<u32>) -> Result<GridMeta> {
     );
     let leaf_base = offset(data)?;
     for (_, leaf) in grid.leaves() {
-        data.extend(leaf.values.iter().map(|v| v.to_bits()));
+        data.extend(leaf.values().map(f32::to_bits));
     }
     let tile_base = offset(data)?;
     for tile in grid.tiles() {

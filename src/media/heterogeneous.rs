@@ -194,7 +194,7 @@ fn extent(grid: &Grid, index_to_world: &DAffine3) -> (f32, [Vec3; 2]) {
         hi = hi.max(b);
     };
     for (origin, leaf) in grid.leaves() {
-        let m = leaf.values.iter().fold(0.0f32, |a, &v| a.max(v));
+        let m = leaf.values().fold(0.0f32, f32::max);
         if m > 0.0 {
             max = max.max(m);
             grow(origin.as_dvec3(), (origin + 7).as_dvec3());

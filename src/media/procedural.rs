@@ -142,7 +142,7 @@ mod tests {
         assert_ne!(probe(&a), probe(&c));
         assert!(a.active_voxels() > 100);
         for (_, leaf) in a.leaves() {
-            assert!(leaf.values.iter().all(|v| (0.0..=1.0).contains(v)));
+            assert!(leaf.values().all(|v| (0.0..=1.0).contains(&v)));
         }
     }
 }

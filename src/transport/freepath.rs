@@ -16,6 +16,12 @@ use crate::transport::Counters;
 /// Ratio-tracking steps: (t_k, factor or, once cumulated, Tr just after t_k).
 pub type RatioSteps = SmallVec<[(f32, f32); 8]>;
 
+/// One grid's majorant segments along one ray, (bounds, t0, t1) front to back: walked
+/// once and tracked over as often as needed. The M ratio trackings of a camera segment
+/// cross the same octree leaves, and the walk (a chain of dependent steps) cost as much
+/// as their lookups.
+pub type Walk = SmallVec<[(LeafBounds, f32, f32); 16]>;
+
 /// The free-path sampler of a pass: the media and which majorants the grids use.
 #[derive(Clone, Copy)]
 pub struct FreePath<'a> {
@@ -78,6 +84,30 @@ impl FreePath<'_> {
             .or(t_hom)
     }
 
+    /// Grid `g`'s majorant segments along the ray over [0, tmax], for [`Self::track_walk`].
+    pub fn walk(&self, g: &Heterogeneous, ray: &Ray, tmax: f32, c: &mut Counters) -> Walk {
+        let mut out = Walk::new();
+        let steps = g.majorants(ray, tmax, self.mode, |b, t0, t1| {
+            out.push((b, t0, t1));
+            true
+        });
+        if self.mode == Mode::Adaptive {
+            c.octree_steps += steps;
+        }
+        out
+    }
+
+    /// [`Self::track`] over segments walked before: the same random numbers, in the same
+    /// order, give the same tentative collisions.
+    fn track_walk(&self, walk: &Walk, rng: &mut Rng, visit: Visit) {
+        let mut tau = -(1.0 - rng.f32()).ln();
+        for &(b, t0, t1) in walk {
+            if b.majorant > 0.0 && !track_constant(t0, t1, b, &mut tau, rng, visit) {
+                return;
+            }
+        }
+    }
+
     /// Tentative collisions of grid `g` along the ray over its majorant segments, a
     /// Poisson process of rate majorant(t); the optical depth left to the next one is
     /// carried across segments (one logarithm per tentative collision, none per segment).
@@ -135,19 +165,26 @@ impl FreePath<'_> {
         best
     }
 
-    /// Ratio tracking through the grids: pushes (t, 1 - sigma_t(x) / majorant) for every
-    /// tentative collision in [0, tmax], in no particular order.
+    /// Every grid's [`Walk`] along the ray over [0, tmax], in the order of `media.grids`.
+    pub fn walks(&self, ray: &Ray, tmax: f32, c: &mut Counters) -> SmallVec<[Walk; 1]> {
+        let grids = self.media.grids.iter();
+        grids.map(|g| self.walk(g, ray, tmax, c)).collect()
+    }
+
+    /// Ratio tracking through the grids over their `walks` ([`Self::walks`] of the ray):
+    /// pushes (t, 1 - sigma_t(x) / majorant) for every tentative collision, in no
+    /// particular order.
     pub fn ratio_steps(
         &self,
         ray: &Ray,
-        tmax: f32,
+        walks: &[Walk],
         rng: &mut Rng,
         c: &mut Counters,
         out: &mut RatioSteps,
     ) {
-        for g in &self.media.grids {
+        for (g, walk) in self.media.grids.iter().zip(walks) {
             let mut lookups = 0;
-            self.track(g, ray, tmax, rng, c, &mut |t, b, _| {
+            self.track_walk(walk, rng, &mut |t, b, _| {
                 lookups += 1;
                 let f = (1.0 - g.sigma_t(ray.at(t)) / b.majorant).max(0.0);
                 out.push((t, f));
@@ -261,5 +298,57 @@ pub(crate) mod tests {
         let p = tr(tmax);
         assert!(escape_err.abs() < 5.0 * (p * (1.0 - p) / n as f64).sqrt());
         assert_eq!(c.density_lookups, 0);
+    }
+}
+
+#[cfg(test)]
+mod walk_tests {
+    use super::*;
+    use crate::transport::transmittance::tests::ramp_media;
+    use glam::Vec3;
+
+    /// Tracking over a walk made once gives the tentative collisions (positions, bounds and
+    /// the random numbers drawn) that tracking along the live octree walk gives, for
+    /// several trackings of one walk; a walk that lost, reordered or repeated a segment
+    /// would shift every later collision.
+    #[test]
+    fn tracking_a_stored_walk_equals_tracking_the_live_walk() {
+        let media = ramp_media();
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Adaptive,
+        };
+        let g = &media.grids[0];
+        let mut dirs = Rng::new(5, 2);
+        let (mut collisions, mut segments) = (0, 0);
+        for ray_index in 0..400 {
+            let target = Vec3::new(dirs.f32(), dirs.f32(), dirs.f32()) * 2.0;
+            let o = Vec3::new(-0.5, 0.3 + dirs.f32(), 1.0 + dirs.f32());
+            let ray = Ray::new(o, (target - o).normalize());
+            let tmax = 1.0 + 3.0 * dirs.f32();
+            let mut c = Counters::default();
+            let walk = fp.walk(g, &ray, tmax, &mut c);
+            segments += walk.len();
+            for k in 0..4u64 {
+                let record = |live: bool| {
+                    let mut rng = Rng::new(ray_index, k);
+                    let mut seen = Vec::new();
+                    let mut visit = |t: f32, b: LeafBounds, rng: &mut Rng| {
+                        seen.push((t.to_bits(), b.majorant.to_bits(), rng.f32().to_bits()));
+                        true
+                    };
+                    if live {
+                        fp.track(g, &ray, tmax, &mut rng, &mut Counters::default(), &mut visit);
+                    } else {
+                        fp.track_walk(&walk, &mut rng, &mut visit);
+                    }
+                    seen
+                };
+                let live = record(true);
+                assert_eq!(record(false), live, "ray {ray_index}, tracking {k}");
+                collisions += live.len();
+            }
+        }
+        assert!(segments > 1500 && collisions > 4000, "{segments} segments, {collisions} collisions");
     }
 }

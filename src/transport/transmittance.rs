@@ -72,9 +72,10 @@ impl SegmentTr {
         let m = m.clamp(1, MAX_TR_SAMPLES);
         let mut tagged: SmallVec<[(f32, u8, f32); 32]> = SmallVec::new();
         let mut one = RatioSteps::new();
+        let walks = fp.walks(ray, tmax, c);
         for k in 0..m {
             one.clear();
-            fp.ratio_steps(ray, tmax, rng, c, &mut one);
+            fp.ratio_steps(ray, &walks, rng, c, &mut one);
             tagged.extend(one.iter().map(|&(t, f)| (t, k as u8, f)));
         }
         tagged.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -237,7 +238,7 @@ pub fn camera_tr(media: &Media, ray: &Ray, grids: &SegmentTr, t: f32) -> f32 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::majorant::Mode;
     use crate::media::grid::GridBuilder;
