@@ -6,9 +6,10 @@
 //! a copy of the voxels one step past its upper faces (the apron), so that the 8 corners of
 //! any trilinear cell starting in a leaf are in one brick: one table read and no branch per
 //! corner, where a cell across leaf slots (a third of them) used to cost eight table reads.
-//! The apron costs 42 % more memory per leaf. Constant regions (VDB tiles) are stored as boxes; the
-//! table's slots that a tile covers whole name it, so a lookup inside a tile (a cloud's
-//! dense core) is as cheap as one in a leaf.
+//! The apron costs 42 % more memory per leaf.
+//! Constant regions (VDB tiles) are stored as boxes; the table's slots that a tile covers
+//! whole name it, so a lookup inside a tile (a cloud's dense core) is as cheap as one in a
+//! leaf.
 //! Values sit at voxel centres: voxel (i,j,k) is at `index_to_world * (i,j,k)` (the VDB
 //! convention); between voxels the field is trilinear; outside leaves and tiles it is
 //! `background`.

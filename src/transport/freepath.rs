@@ -338,7 +338,14 @@ mod walk_tests {
                         true
                     };
                     if live {
-                        fp.track(g, &ray, tmax, &mut rng, &mut Counters::default(), &mut visit);
+                        fp.track(
+                            g,
+                            &ray,
+                            tmax,
+                            &mut rng,
+                            &mut Counters::default(),
+                            &mut visit,
+                        );
                     } else {
                         fp.track_walk(&walk, &mut rng, &mut visit);
                     }
@@ -349,6 +356,9 @@ mod walk_tests {
                 collisions += live.len();
             }
         }
-        assert!(segments > 1500 && collisions > 4000, "{segments} segments, {collisions} collisions");
+        assert!(
+            segments > 1500 && collisions > 4000,
+            "{segments} segments, {collisions} collisions"
+        );
     }
 }
