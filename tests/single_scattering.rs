@@ -358,7 +358,9 @@ fn nee(light: Light, n: usize, samples: usize) -> (f64, f64, f64, f64) {
         .map(|_| {
             let tr = |t: f32| (-SIGMA_T * t).exp();
             let spans = media.spans(&ray, len);
-            direct.along(&ray, len, &spans, tr, &mut rng, &mut c).x as f64
+            direct
+                .along(&ray, len, &spans, None, tr, &mut rng, &mut c)
+                .x as f64
         })
         .collect();
     let mean = v.iter().sum::<f64>() / n as f64;

@@ -5,9 +5,10 @@
 //! GPU), so camera tracing and the beam estimate can overlap across passes.
 use glam::{Mat4, Vec2, Vec3, Vec4};
 use rayon::prelude::*;
+use smallvec::SmallVec;
 
 use super::direct::Direct;
-use super::freepath::FreePath;
+use super::freepath::{FreePath, Walk};
 use super::light::{enters_glass, LightSampler};
 use super::transmittance::camera_tr;
 use super::transmittance::{SegmentTr, StratPixel, StratStore};
@@ -473,7 +474,9 @@ impl CameraTracer<'_> {
             Some((p, s)) => (Some(p), s),
             None => (None, None),
         };
-        let gtr = self.grid_transmittance(ray, t_surf, st.in_glass, rng, c, strat);
+        let walks = self.walks(ray, t_surf, st.in_glass, c);
+        let walks = walks.as_deref();
+        let gtr = self.grid_transmittance(ray, t_surf, st.in_glass, walks, rng, c, strat);
         // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
         let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
             self.media.spans(ray, t_surf)
@@ -483,7 +486,7 @@ impl CameraTracer<'_> {
         let mut l = Rgb::ZERO;
         if let (Some(d), false) = (&self.direct, spans.is_empty()) {
             let tr = |t| camera_tr(self.media, ray, &gtr, t);
-            l = st.beta * d.along(ray, t_surf, &spans, tr, rng, c);
+            l = st.beta * d.along(ray, t_surf, &spans, walks, tr, rng, c);
         }
         let beta = st.beta;
         if primary.is_some() {
@@ -563,13 +566,42 @@ impl CameraTracer<'_> {
         lo
     }
 
+    /// The grids' octree walks along a camera segment in media, made once for the two
+    /// users that read the same leaves: ratio tracking's M trackings and next-event
+    /// estimation's distances by the majorant (lights with no position). Timed as
+    /// transmittance, which they serve first.
+    fn walks(
+        &self,
+        ray: &Ray,
+        t_surf: f32,
+        in_glass: bool,
+        c: &mut Counters,
+    ) -> Option<SmallVec<[Walk; 1]>> {
+        let ratio = self.tr_mode == TrMode::Ratio;
+        let nee = self
+            .direct
+            .as_ref()
+            .is_some_and(|d| d.lights.any_unplaced());
+        if in_glass || !(ratio || nee) || !self.media.crosses_grids(ray, t_surf) {
+            return None;
+        }
+        let (mut tick, mut secs) = (c.timing_ticks, c.transmittance_seconds);
+        let walks = timed(&mut tick, &mut secs, || {
+            self.free_path.walks(ray, t_surf, c)
+        });
+        (c.timing_ticks, c.transmittance_seconds) = (tick, secs);
+        Some(walks)
+    }
+
     /// The grid part of the transmittance along a camera segment (clear when the segment
-    /// misses every grid or runs inside glass).
+    /// misses every grid or runs inside glass), ratio tracking over the segment's `walks`.
+    #[allow(clippy::too_many_arguments)]
     fn grid_transmittance(
         &self,
         ray: &Ray,
         t_surf: f32,
         in_glass: bool,
+        walks: Option<&[Walk]>,
         rng: &mut Rng,
         c: &mut Counters,
         strat: Option<StratPixel>,
@@ -579,10 +611,13 @@ impl CameraTracer<'_> {
         }
         let (fp, m) = (&self.free_path, self.tr_samples);
         let (mut tick, mut secs) = (c.timing_ticks, c.transmittance_seconds);
-        let tr = timed(&mut tick, &mut secs, || match (self.tr_mode, strat) {
-            (TrMode::Ratio, _) => SegmentTr::ratio(fp, ray, t_surf, m, rng, c),
-            (TrMode::Stratified, Some(mut px)) => px.pick(fp, ray, t_surf, m, c),
-            _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
+        let tr = timed(&mut tick, &mut secs, || {
+            match (self.tr_mode, strat, walks) {
+                (TrMode::Ratio, _, Some(walks)) => SegmentTr::ratio_over(fp, ray, walks, m, rng, c),
+                (TrMode::Ratio, _, None) => SegmentTr::ratio(fp, ray, t_surf, m, rng, c),
+                (TrMode::Stratified, Some(mut px), _) => px.pick(fp, ray, t_surf, m, c),
+                _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
+            }
         });
         (c.timing_ticks, c.transmittance_seconds) = (tick, secs);
         tr

@@ -10,12 +10,13 @@ use glam::Vec3;
 use smallvec::SmallVec;
 use std::f32::consts::PI;
 
-use super::freepath::FreePath;
+use super::freepath::{FreePath, Walk};
 use super::light::LightSampler;
 use super::Counters;
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::geometry::{Geometry, EPS};
+use crate::majorant::LeafBounds;
 use crate::media::Media;
 use crate::sampling::{cosine_hemisphere, Rng};
 use crate::scene::Light;
@@ -69,19 +70,27 @@ fn sample_by_majorant(rates: &Rates, u: f32) -> Option<(f32, f32)> {
 }
 
 /// The media's majorant along the ray as disjoint constant pieces: a sweep over the
-/// homogeneous pieces and every grid's majorant segments (each list sorted and disjoint).
-fn majorant_rates(fp: &FreePath, ray: &Ray, tmax: f32) -> Rates {
+/// homogeneous pieces and every grid's majorant segments (each list sorted and disjoint),
+/// from the grids' `walks` over [0, tmax] where the caller made them.
+fn majorant_rates(fp: &FreePath, ray: &Ray, tmax: f32, walks: Option<&[Walk]>) -> Rates {
     let mut events: SmallVec<[(f32, f32); 32]> = SmallVec::new();
     for p in fp.media.pieces(ray, tmax).iter() {
         events.extend([(p.t0, p.sigma_t), (p.t1, -p.sigma_t)]);
     }
-    for g in &fp.media.grids {
-        g.majorants(ray, tmax, fp.mode, |b, t0, t1| {
-            if b.majorant > 0.0 && t1 > t0 {
-                events.extend([(t0, b.majorant), (t1, -b.majorant)]);
-            }
-            true
-        });
+    let mut add = |b: LeafBounds, t0: f32, t1: f32| {
+        if b.majorant > 0.0 && t1 > t0 {
+            events.extend([(t0, b.majorant), (t1, -b.majorant)]);
+        }
+        true
+    };
+    match walks {
+        Some(walks) => walks
+            .iter()
+            .flatten()
+            .for_each(|&(b, t0, t1)| _ = add(b, t0, t1)),
+        None => fp.media.grids.iter().for_each(|g| {
+            g.majorants(ray, tmax, fp.mode, &mut add);
+        }),
     }
     events.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out = Rates::new();
@@ -103,6 +112,7 @@ struct Segment<'a> {
     ray: &'a Ray,
     t_surf: f32,
     spans: &'a [(f32, f32)],
+    walks: Option<&'a [Walk]>,
     rates: &'a std::cell::OnceCell<Rates>,
 }
 
@@ -172,11 +182,15 @@ impl Direct<'_> {
     /// media spans are `spans`, times the camera transmittance `cam_tr(t)` from the ray
     /// origin: the mean of [`Self::samples`] estimates whose distances are stratified (the
     /// i-th draws its uniform in [i/k, (i+1)/k)), so they spread along the segment.
+    /// `walks`, the grids' octree walks over the segment where the caller made them, give
+    /// the majorant for a light with no position.
+    #[allow(clippy::too_many_arguments)]
     pub fn along(
         &self,
         ray: &Ray,
         t_surf: f32,
         spans: &[(f32, f32)],
+        walks: Option<&[Walk]>,
         cam_tr: impl Fn(f32) -> f32,
         rng: &mut Rng,
         c: &mut Counters,
@@ -189,6 +203,7 @@ impl Direct<'_> {
             ray,
             t_surf,
             spans,
+            walks,
             rates: &rates,
         };
         let mut l = Rgb::ZERO;
@@ -227,7 +242,7 @@ impl Direct<'_> {
                 let u = (start + width * rng.f32()).min(ONE_BELOW);
                 let rates = seg
                     .rates
-                    .get_or_init(|| majorant_rates(&self.free_path, ray, seg.t_surf));
+                    .get_or_init(|| majorant_rates(&self.free_path, ray, seg.t_surf, seg.walks));
                 if let Some((t, pdf)) = sample_by_majorant(rates, u) {
                     l += self.scattered(ray, t, light, cam_tr, rng, c) / pdf;
                 }
@@ -345,7 +360,7 @@ mod tests {
         let n = 4096;
         for k in 0..n {
             let u = (k as f32 + 0.5) / n as f32;
-            let (t, pdf) = sample_by_majorant(&majorant_rates(&fp, &ray, tmax), u)
+            let (t, pdf) = sample_by_majorant(&majorant_rates(&fp, &ray, tmax, None), u)
                 .expect("the ray crosses the media");
             let tau = media.optical_depth(&ray, 0.0, t);
             let total = media.optical_depth(&ray, 0.0, tmax);

@@ -48,6 +48,12 @@ impl LightSampler {
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
+    /// Whether a light has no position (directional, environment): next-event estimation
+    /// then samples distances along a segment by the media's majorant.
+    pub fn any_unplaced(&self) -> bool {
+        self.lights.iter().any(|l| l.anchor().is_none())
+    }
+
     /// Whether a ray leaving the scene sees any light (an environment).
     pub fn at_infinity(&self) -> bool {
         self.lights.iter().any(Light::is_background)

@@ -19,7 +19,7 @@ use crate::core::Ray;
 use crate::media::Media;
 use crate::sampling::Rng;
 use crate::settings::MAX_TR_SAMPLES;
-use crate::transport::freepath::{FreePath, RatioSteps};
+use crate::transport::freepath::{FreePath, RatioSteps, Walk};
 use crate::transport::Counters;
 
 /// One pass's estimate of the grids' transmittance along one camera segment.
@@ -69,13 +69,26 @@ impl SegmentTr {
         rng: &mut Rng,
         c: &mut Counters,
     ) -> SegmentTr {
+        let walks = fp.walks(ray, tmax, c);
+        SegmentTr::ratio_over(fp, ray, &walks, m, rng, c)
+    }
+
+    /// [`Self::ratio`] over the grids' walks along `ray` ([`FreePath::walks`]), made
+    /// before for this and other uses of the segment.
+    pub fn ratio_over(
+        fp: &FreePath,
+        ray: &Ray,
+        walks: &[Walk],
+        m: usize,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> SegmentTr {
         let m = m.clamp(1, MAX_TR_SAMPLES);
         let mut tagged: SmallVec<[(f32, u8, f32); 32]> = SmallVec::new();
         let mut one = RatioSteps::new();
-        let walks = fp.walks(ray, tmax, c);
         for k in 0..m {
             one.clear();
-            fp.ratio_steps(ray, &walks, rng, c, &mut one);
+            fp.ratio_steps(ray, walks, rng, c, &mut one);
             tagged.extend(one.iter().map(|&(t, f)| (t, k as u8, f)));
         }
         tagged.sort_by(|a, b| a.0.total_cmp(&b.0));
