@@ -97,11 +97,15 @@ impl FreePath<'_> {
         out
     }
 
-    /// [`Self::track`] over segments walked before: the same random numbers, in the same
-    /// order, give the same tentative collisions.
-    fn track_walk(&self, walk: &Walk, rng: &mut Rng, visit: Visit) {
+    /// [`Self::track`] up to `limit` over segments walked before (to `limit` or further):
+    /// the same random numbers, in the same order, give the same tentative collisions.
+    fn track_walk(&self, walk: &Walk, limit: f32, rng: &mut Rng, visit: Visit) {
         let mut tau = -(1.0 - rng.f32()).ln();
         for &(b, t0, t1) in walk {
+            if t0 >= limit {
+                return;
+            }
+            let t1 = t1.min(limit);
             if b.majorant > 0.0 && !track_constant(t0, t1, b, &mut tau, rng, visit) {
                 return;
             }
@@ -141,11 +145,25 @@ impl FreePath<'_> {
         rng: &mut Rng,
         c: &mut Counters,
     ) -> Option<f32> {
+        self.sample_grids_over(ray, tmax, None, rng, c)
+    }
+
+    /// [`Self::sample_grids`], over the grids' `walks` along the ray to `tmax` where the
+    /// caller made them ([`Self::walks`]; the M free paths of a camera segment cross the
+    /// same leaves), else along the octrees.
+    pub fn sample_grids_over(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        walks: Option<&[Walk]>,
+        rng: &mut Rng,
+        c: &mut Counters,
+    ) -> Option<f32> {
         let mut best: Option<f32> = None;
-        for g in &self.media.grids {
+        for (i, g) in self.media.grids.iter().enumerate() {
             let limit = best.unwrap_or(tmax);
             let (mut lookups, mut accepts) = (0, 0);
-            self.track(g, ray, limit, rng, c, &mut |t, b, rng| {
+            let mut visit = |t: f32, b: LeafBounds, rng: &mut Rng| {
                 let u = rng.f32() * b.majorant;
                 let real = if u < b.minorant {
                     accepts += 1;
@@ -158,7 +176,11 @@ impl FreePath<'_> {
                     best = Some(t);
                 }
                 !real
-            });
+            };
+            match walks.and_then(|w| w.get(i)) {
+                Some(walk) => self.track_walk(walk, limit, rng, &mut visit),
+                None => self.track(g, ray, limit, rng, c, &mut visit),
+            }
             c.density_lookups += lookups;
             c.minorant_accepts += accepts;
         }
@@ -184,7 +206,7 @@ impl FreePath<'_> {
     ) {
         for (g, walk) in self.media.grids.iter().zip(walks) {
             let mut lookups = 0;
-            self.track_walk(walk, rng, &mut |t, b, _| {
+            self.track_walk(walk, f32::INFINITY, rng, &mut |t, b, _| {
                 lookups += 1;
                 let f = (1.0 - g.sigma_t(ray.at(t)) / b.majorant).max(0.0);
                 out.push((t, f));
@@ -347,7 +369,7 @@ mod walk_tests {
                             &mut visit,
                         );
                     } else {
-                        fp.track_walk(&walk, &mut rng, &mut visit);
+                        fp.track_walk(&walk, f32::INFINITY, &mut rng, &mut visit);
                     }
                     seen
                 };
@@ -360,5 +382,49 @@ mod walk_tests {
             segments > 1500 && collisions > 4000,
             "{segments} segments, {collisions} collisions"
         );
+    }
+
+    /// Free paths over stored walks equal free paths along the live octree walks, draw for
+    /// draw, with two overlapping grids: the second grid's walk is cut at the first grid's
+    /// collision as the live walk to that distance would be.
+    #[test]
+    fn free_paths_over_stored_walks_equal_live_ones() {
+        use crate::transport::transmittance::tests::ramp_media_with;
+        let (a, b) = (ramp_media_with(0.0, 2.0), ramp_media_with(0.5, 1.0));
+        let media = Media::with_grids(vec![], vec![a.grids[0].clone(), b.grids[0].clone()]);
+        let mut dirs = Rng::new(7, 3);
+        let mut found = 0;
+        for mode in [Mode::Adaptive, Mode::Woodcock] {
+            let fp = FreePath {
+                media: &media,
+                mode,
+            };
+            for ray_index in 0..300 {
+                let target = Vec3::new(dirs.f32(), dirs.f32(), dirs.f32()) * 2.0;
+                let o = Vec3::new(-0.5, 0.3 + dirs.f32(), 1.0 + dirs.f32());
+                let ray = Ray::new(o, (target - o).normalize());
+                let tmax = 1.0 + 3.0 * dirs.f32();
+                let walks = fp.walks(&ray, tmax, &mut Counters::default());
+                let mut live = Rng::new(ray_index, 1);
+                let mut stored = Rng::new(ray_index, 1);
+                for _ in 0..8 {
+                    let c = &mut Counters::default();
+                    let want = fp.sample_grids(&ray, tmax, &mut live, c);
+                    let got = fp.sample_grids_over(&ray, tmax, Some(&walks), &mut stored, c);
+                    assert_eq!(
+                        got.map(f32::to_bits),
+                        want.map(f32::to_bits),
+                        "{mode:?} ray {ray_index}"
+                    );
+                    found += want.is_some() as u32;
+                }
+                assert_eq!(
+                    live.f32().to_bits(),
+                    stored.f32().to_bits(),
+                    "streams apart"
+                );
+            }
+        }
+        assert!(found > 2000, "only {found} collisions");
     }
 }

@@ -48,9 +48,11 @@ impl SegmentTr {
     ) -> SegmentTr {
         let m = m.clamp(1, MAX_TR_SAMPLES);
         let mut lengths = [f32::INFINITY; MAX_TR_SAMPLES];
+        let walks = fp.walks(ray, tmax, c);
         for l in lengths.iter_mut().take(m) {
             c.free_paths += 1;
-            *l = fp.sample_grids(ray, tmax, rng, c).unwrap_or(f32::INFINITY);
+            let t = fp.sample_grids_over(ray, tmax, Some(&walks), rng, c);
+            *l = t.unwrap_or(f32::INFINITY);
         }
         SegmentTr::FreePaths {
             lengths,
@@ -214,10 +216,11 @@ impl StratPixel<'_> {
         c: &mut Counters,
     ) -> SegmentTr {
         if self.regenerate {
+            let walks = fp.walks(ray, tmax, c);
             for p in self.paths.iter_mut() {
                 c.free_paths += 1;
                 *p = fp
-                    .sample_grids(ray, tmax, &mut self.block_rng, c)
+                    .sample_grids_over(ray, tmax, Some(&walks), &mut self.block_rng, c)
                     .unwrap_or(f32::INFINITY);
             }
             self.paths.sort_by(f32::total_cmp);
