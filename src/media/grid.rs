@@ -297,20 +297,6 @@ fn mark_tiles(table: &mut [u32], min: IVec3, dim: IVec3, tiles: &[Tile]) {
     }
 }
 
-/// Calls `f` with the local position of every apron voxel of a brick (x, y or z = 8), in
-/// a fixed order.
-fn for_apron(mut f: impl FnMut(IVec3)) {
-    for x in 0..BRICK {
-        for y in 0..BRICK {
-            for z in 0..BRICK {
-                if x == LEAF || y == LEAF || z == LEAF {
-                    f(IVec3::new(x, y, z));
-                }
-            }
-        }
-    }
-}
-
 /// Sets `out[at(v)] = value(v)` for every voxel v of the inclusive box [a, b].
 fn fill_box(
     out: &mut [f32],
@@ -357,16 +343,46 @@ impl Grid {
     }
 
     /// Copies into each brick's apron the values of the voxels past its upper faces, read
-    /// from the leaves' own voxels, tiles and background (never from another apron).
+    /// from the leaves' own voxels, tiles and background (never from another apron), as
+    /// [`Self::value`] gives them: per upper neighbour slot (3 faces, 3 edges, a corner), a
+    /// copy from its brick or its constant, one slot lookup each.
     fn fill_aprons(&mut self) {
-        let mut apron = Vec::with_capacity(BRICK_VOXELS - LEAF_VOXELS);
+        let mut part = [0f32; (LEAF * LEAF) as usize];
         for i in 0..self.bricks.len() {
             let origin = self.leaf_origins[i];
-            apron.clear();
-            for_apron(|local| apron.push(self.value(origin + local)));
-            let brick = &mut self.bricks[i].0;
-            let mut values = apron.iter();
-            for_apron(|local| brick[brick_offset(local)] = *values.next().expect("apron"));
+            for bits in 1..8 {
+                // The neighbour one slot up along the set axes; along those the apron is
+                // one voxel thick (the neighbour's first), along the others a whole leaf.
+                let up = IVec3::new(bits & 1, bits >> 1 & 1, bits >> 2 & 1);
+                let n = (1 - up) * (LEAF - 1) + 1;
+                let next = origin + up * LEAF;
+                let mut k = 0;
+                let slot = self.slot(next);
+                for x in 0..n.x {
+                    for y in 0..n.y {
+                        for z in 0..n.z {
+                            let local = IVec3::new(x, y, z);
+                            part[k] = match slot {
+                                Slot::Leaf(b) => b.0[brick_offset(local)],
+                                Slot::Tile(v) => v,
+                                Slot::Background => self.background,
+                                Slot::Other => self.value(next + local),
+                            };
+                            k += 1;
+                        }
+                    }
+                }
+                let brick = &mut self.bricks[i].0;
+                let mut values = part[..k].iter();
+                for x in 0..n.x {
+                    for y in 0..n.y {
+                        for z in 0..n.z {
+                            let at = brick_offset(IVec3::new(x, y, z) + up * LEAF);
+                            brick[at] = *values.next().expect("one value per apron voxel");
+                        }
+                    }
+                }
+            }
         }
     }
 
