@@ -36,9 +36,7 @@ impl Estimator for CpuBeams {
         _traced: (Instant, Instant),
     ) -> Result<u64> {
         let (img, evals) = nested_beam_image(view, t);
-        let (l, d): (Vec<Rgb>, Vec<Rgb>) = img.iter().map(|n| (n.l, n.d)).unzip();
-        film.add(t.odd, &l);
-        film.add_nested(t.odd, &d);
+        film.add_beams(t.odd, &img);
         Ok(evals)
     }
 
@@ -55,7 +53,7 @@ impl Estimator for CpuBeams {
 /// photon estimate) and the number of kernel evaluations.
 pub fn beam_image(view: View, t: &TracedPass) -> (Vec<Rgb>, u64) {
     let (img, evals) = nested_beam_image(view, t);
-    (img.iter().map(|n| n.l).collect(), evals)
+    (img.par_iter().map(|n| n.l).collect(), evals)
 }
 
 /// [`beam_image`] with each pixel's nested half-radius difference.

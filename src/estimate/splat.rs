@@ -55,14 +55,16 @@ pub fn splat(
         }
     }
     let origin = cam.origin();
-    let rays = Rays::new(primaries.iter().map(|p| (p.dir, p.t_surf)));
-    let results: Vec<(Vec<Nested>, u64)> = per_band
-        .par_iter()
+    let rays = Rays::new(primaries.par_iter().map(|p| (p.dir, p.t_surf)));
+    let mut img = vec![Nested::default(); w * h];
+    // Each band writes its rows of the image in place: no serial assembly after.
+    let evals = img
+        .par_chunks_mut(BAND * w)
+        .zip(per_band.par_iter())
         .enumerate()
-        .map(|(band, list)| {
+        .map(|(band, (img, list))| {
             let row0 = band * BAND;
-            let rows = BAND.min(h - row0);
-            let mut img = vec![Nested::default(); rows * w];
+            let rows = img.len() / w;
             let mut evals = 0u64;
             for &bi in list {
                 let Some(line) = &lines[bi as usize] else {
@@ -82,15 +84,9 @@ pub fn splat(
                     });
                 }
             }
-            (img, evals)
+            evals
         })
-        .collect();
-    let mut img = Vec::with_capacity(w * h);
-    let mut evals = 0;
-    for (part, e) in results {
-        img.extend(part);
-        evals += e;
-    }
+        .sum();
     (img, evals)
 }
 
