@@ -34,6 +34,7 @@
 //! eq. 3) that converge to the radiance, and any lambda in [0, 1], however it was
 //! chosen, gives |X + lambda D - L| <= |X - L| + |D| <= 2 |X - L| + |X + D - L|.
 use super::{Film, Halves};
+use rayon::prelude::*;
 
 /// Block size of the low-frequency error (4x4 block means, as the conformance tests judge).
 pub const BLOCK: usize = 4;
@@ -365,26 +366,28 @@ fn l1(v: &[[f64; 3]], keep: &[bool]) -> f64 {
         .sum()
 }
 
-/// The mean of each pixel's (2 k + 1)^2 window, clipped at the image's edges.
+/// The mean of each pixel's (2 k + 1)^2 window, clipped at the image's edges; rows in
+/// parallel (the estimate sweeps the film several times, after every render and as
+/// often as `watch` and `--target-error` ask).
 fn window_mean(v: &[[f64; 3]], w: usize, h: usize, k: usize) -> Pixels {
     let mut out = vec![[0f64; 3]; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (ys, xs) = (
-                y.saturating_sub(k)..(y + k + 1).min(h),
-                x.saturating_sub(k)..(x + k + 1).min(w),
-            );
-            let count = (ys.len() * xs.len()) as f64;
-            let mut sum = [0f64; 3];
-            for v2 in ys {
-                for u in xs.clone() {
-                    let p = v[v2 * w + u];
-                    (0..3).for_each(|c| sum[c] += p[c]);
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let ys = y.saturating_sub(k)..(y + k + 1).min(h);
+            for (x, o) in row.iter_mut().enumerate() {
+                let xs = x.saturating_sub(k)..(x + k + 1).min(w);
+                let count = (ys.len() * xs.len()) as f64;
+                let mut sum = [0f64; 3];
+                for v2 in ys.clone() {
+                    for u in xs.clone() {
+                        let p = v[v2 * w + u];
+                        (0..3).for_each(|c| sum[c] += p[c]);
+                    }
                 }
+                *o = sum.map(|s| s / count);
             }
-            out[y * w + x] = sum.map(|s| s / count);
-        }
-    }
+        });
     out
 }
 
