@@ -91,6 +91,7 @@ pub fn splat(
 }
 
 /// Eq. 2 for one beam and one primary segment [0, t_surf) whose crossing `c` counts.
+#[inline(always)]
 fn contribution(
     o: Vec3,
     p: &Primary,
