@@ -106,7 +106,7 @@ fn camera_optical_depths_match_box_chords() {
         } else {
             f32::MAX
         };
-        let exact = media.optical_depth(&ray, 0.0, t_floor);
+        let exact = media.optical_depth(&ray, t_floor);
         assert!(
             (tau - exact).abs() <= 1e-4 * exact.max(1.0),
             "pixel {i}: {tau} vs {exact}"
@@ -158,7 +158,7 @@ fn splat_finds_every_pair_the_gather_finds() {
                     &ray,
                     (0.0, p.t_surf),
                     |x, cos| media.in_scatter(x, cos),
-                    |t| camera_tr(media, &ray, &p.tr, t),
+                    |t| camera_tr(&p.chords, &p.tr, t),
                     &mut evals,
                 );
                 // The image and its nested half-radius difference alike.

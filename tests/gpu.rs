@@ -117,7 +117,7 @@ fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what:
         let ray = Ray::new(r.camera().origin(), p.dir);
         let mut pairs = 0;
         let scatter = |x, cos| media.in_scatter(x, cos);
-        let tr = |tt| ppb::transport::transmittance::camera_tr(media, &ray, &p.tr, tt);
+        let tr = |tt| ppb::transport::transmittance::camera_tr(&p.chords, &p.tr, tt);
         map.nested_radiance(&ray, (0.0, p.t_surf), scatter, tr, &mut pairs);
         let secondary = t
             .camera
@@ -510,6 +510,7 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
             true,
         ),
     ];
+    let chords = media.chords(&ray);
     for (name, b, tr, counts) in cases {
         let cpu = eq2::term(
             &ray,
@@ -517,7 +518,7 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
             &BeamPiece::whole(&b, 0),
             R,
             |x, cos| media.in_scatter(x, cos),
-            |t| ppb::transport::transmittance::camera_tr(&media, &ray, tr, t),
+            |t| ppb::transport::transmittance::camera_tr(&chords, tr, t),
         );
         assert_eq!(cpu.is_some(), counts, "{name}: the CPU rule");
         let gpu = one_pixel_on_gpu(&mut est, &media, ray.d, T_SURF, tr, b, R);
@@ -578,6 +579,8 @@ fn one_pixel_on_gpu(
                 dir,
                 t_surf,
                 tr: tr.clone(),
+                // The camera of `one_pixel_estimator` sits at the origin.
+                chords: media.chords(&Ray::new(Vec3::ZERO, dir)),
             }],
             secondary: Vec::new(),
             counters: Counters::default(),
@@ -621,7 +624,8 @@ fn gpu_box_rule_matches_cpu_for_rays_in_a_face() {
     ]);
     let mut est = one_pixel_estimator(g, &media);
     let ray = Ray::new(Vec3::ZERO, Vec3::X);
-    let tr = |t| ppb::transport::transmittance::camera_tr(&media, &ray, &SegmentTr::Clear, t);
+    let chords = media.chords(&ray);
+    let tr = |t| ppb::transport::transmittance::camera_tr(&chords, &SegmentTr::Clear, t);
     for t in [0.5f32, 1.0, 1.75] {
         let want = (-0.5 * t).exp();
         assert!(

@@ -429,6 +429,7 @@ fn beam_estimate_tracks_camera_transmittance() {
                             dir: ray.d,
                             t_surf: tmax,
                             tr: SegmentTr::Clear,
+                            chords: media.chords(&ray),
                         };
                         pixels
                     ],

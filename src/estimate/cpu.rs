@@ -86,7 +86,7 @@ fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Nested, u
     let mut evals = 0;
     let mut l = Nested::default();
     for span in media.spans(ray, s.t_surf) {
-        let tr = |t| camera_tr(media, ray, &s.tr, t);
+        let tr = |t| camera_tr(&s.chords, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
         l += map.nested_radiance(ray, span, scatter, tr, &mut evals);
     }

@@ -324,14 +324,11 @@ mod tests {
             phase: Phase { g: 0.0 },
         }]);
         let grids = SegmentTr::Ratio(RatioSteps::from_slice(&[(2.0, 0.25)]));
-        let ray = ray();
-        assert_eq!(camera_tr(&media, &ray, &grids, 0.5), 1.0);
-        assert_eq!(camera_tr(&media, &ray, &grids, 2.0), (-0.5f32).exp());
-        assert_eq!(
-            camera_tr(&media, &ray, &grids, 2.5),
-            (-0.75f32).exp() * 0.25
-        );
-        assert_eq!(camera_tr(&media, &ray, &grids, 4.0), (-1.0f32).exp() * 0.25);
+        let chords = media.chords(&ray());
+        assert_eq!(camera_tr(&chords, &grids, 0.5), 1.0);
+        assert_eq!(camera_tr(&chords, &grids, 2.0), (-0.5f32).exp());
+        assert_eq!(camera_tr(&chords, &grids, 2.5), (-0.75f32).exp() * 0.25);
+        assert_eq!(camera_tr(&chords, &grids, 4.0), (-1.0f32).exp() * 0.25);
     }
 
     /// The grid factor agrees with the steps the GPU reads (`grid_tr` in the shader: the

@@ -103,7 +103,7 @@ fn contribution(
     let ray = Ray::new(o, p.dir);
     let scatter = |x, cos| media.in_scatter(x, cos);
     counted_term(&ray, c, beam, r, scatter, |t| {
-        camera_tr(media, &ray, &p.tr, t)
+        camera_tr(&p.chords, &p.tr, t)
     })
 }
 

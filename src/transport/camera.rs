@@ -18,7 +18,7 @@ use crate::bsdf;
 use crate::core::Ray;
 use crate::core::{Nested, Rgb};
 use crate::geometry::{Geometry, Hit, EPS};
-use crate::media::Media;
+use crate::media::{Chords, Media};
 use crate::sampling::{Rng, Stream};
 use crate::scene::{Camera, Material};
 use crate::settings::{TrMode, MAX_TR_BLOCK};
@@ -179,15 +179,20 @@ pub struct Primary {
     pub t_surf: f32,
     /// This pass's estimate of the grids' transmittance along the segment.
     pub tr: SegmentTr,
+    /// The homogeneous media along the segment.
+    pub chords: Chords,
 }
 
 impl Primary {
     /// A placeholder a pass's buffer starts with; every pixel overwrites its own.
-    const NONE: Primary = Primary {
-        dir: Vec3::ZERO,
-        t_surf: 0.0,
-        tr: SegmentTr::Clear,
-    };
+    fn none() -> Primary {
+        Primary {
+            dir: Vec3::ZERO,
+            t_surf: 0.0,
+            tr: SegmentTr::Clear,
+            chords: Chords::default(),
+        }
+    }
 }
 
 /// A camera segment after one or more specular bounces that runs through media.
@@ -199,6 +204,8 @@ pub struct Secondary {
     /// Path weight (specular factors and transmittance up to the ray origin).
     pub beta: Rgb,
     pub tr: SegmentTr,
+    /// The homogeneous media along the segment.
+    pub chords: Chords,
 }
 
 /// One pass of camera paths, before the beam estimate.
@@ -318,7 +325,7 @@ impl CameraTracer<'_> {
         let mut image = vec![Rgb::ZERO; n];
         let mut nested = vec![Rgb::ZERO; n];
         let mut alpha = vec![0.0f32; n];
-        let mut primaries: Vec<Primary> = (0..n).into_par_iter().map(|_| Primary::NONE).collect();
+        let mut primaries: Vec<Primary> = (0..n).into_par_iter().map(|_| Primary::none()).collect();
         // Each row writes its pixels in place: a serial gathering of the rows after was a
         // few per cent of a 2-core pass's wall time.
         let rows: Vec<(Vec<Secondary>, Counters)> = image
@@ -396,7 +403,7 @@ impl CameraTracer<'_> {
         let mut primary = Primary {
             dir: ray.d,
             t_surf: f32::INFINITY,
-            tr: SegmentTr::Clear,
+            ..Primary::none()
         };
         let state = PathState {
             beta: Rgb::ONE,
@@ -489,6 +496,7 @@ impl CameraTracer<'_> {
         let walks = self.walks(ray, t_surf, st.in_glass, c);
         let walks = walks.as_deref();
         let gtr = self.grid_transmittance(ray, t_surf, st.in_glass, walks, rng, c, strat);
+        let chords = self.media.chords(ray);
         // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
         let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
             self.media.spans(ray, t_surf)
@@ -497,7 +505,7 @@ impl CameraTracer<'_> {
         };
         let mut l = Rgb::ZERO;
         if let (Some(d), false) = (&self.direct, spans.is_empty()) {
-            let tr = |t| camera_tr(self.media, ray, &gtr, t);
+            let tr = |t| camera_tr(&chords, &gtr, t);
             l = st.beta * d.along(ray, t_surf, &spans, walks, tr, rng, c);
         }
         let beta = st.beta;
@@ -508,7 +516,7 @@ impl CameraTracer<'_> {
                 let tr = if st.in_glass {
                     1.0
                 } else {
-                    camera_tr(self.media, ray, &gtr, t)
+                    camera_tr(&chords, &gtr, t)
                 };
                 l += beta * le * tr;
             }
@@ -517,10 +525,10 @@ impl CameraTracer<'_> {
         // there (the environment) is what it will see.
         let reaches = t_surf.is_finite() || self.lights.at_infinity() || self.transparent;
         if !self.media.is_empty() && !st.in_glass && reaches {
-            let tau = self.media.optical_depth(ray, 0.0, t_surf);
+            let tau = chords.optical_depth(t_surf);
             st.beta *= (-tau).exp() * gtr.eval(t_surf);
         }
-        record(ray, t_surf, beta, gtr, primary, &spans, out);
+        record(ray, t_surf, beta, gtr, chords, primary, &spans, out);
         l
     }
 
@@ -644,6 +652,7 @@ fn record(
     t_surf: f32,
     beta: Rgb,
     tr: SegmentTr,
+    chords: Chords,
     primary: Option<&mut Primary>,
     spans: &[(f32, f32)],
     out: &mut Out,
@@ -651,6 +660,7 @@ fn record(
     if let Some(p) = primary {
         p.t_surf = t_surf;
         p.tr = tr;
+        p.chords = chords;
     } else if !spans.is_empty() {
         out.segments.push(Secondary {
             pixel: out.pixel,
@@ -658,6 +668,7 @@ fn record(
             t_surf,
             beta,
             tr,
+            chords,
         });
     }
 }

@@ -356,14 +356,14 @@ mod tests {
         };
         let ray = Ray::new(Vec3::new(-2.0, 0.1, 0.2), Vec3::X);
         let tmax = 5.0;
-        let norm = 1.0 - (-media.optical_depth(&ray, 0.0, tmax)).exp();
+        let norm = 1.0 - (-media.optical_depth(&ray, tmax)).exp();
         let n = 4096;
         for k in 0..n {
             let u = (k as f32 + 0.5) / n as f32;
             let (t, pdf) = sample_by_majorant(&majorant_rates(&fp, &ray, tmax, None), u)
                 .expect("the ray crosses the media");
-            let tau = media.optical_depth(&ray, 0.0, t);
-            let total = media.optical_depth(&ray, 0.0, tmax);
+            let tau = media.optical_depth(&ray, t);
+            let total = media.optical_depth(&ray, tmax);
             let expect = 0.5 * media.sigma_t(ray.at(t)) * ((-tau).exp() / norm + 1.0 / total);
             assert!(
                 (pdf / expect - 1.0).abs() < 1e-3,

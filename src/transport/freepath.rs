@@ -245,7 +245,7 @@ impl FreePath<'_> {
     /// Transmittance along `ray` to `tmax` (infinite: out of the scene), unbiased: the
     /// homogeneous media's exp(-tau) times a ratio-tracking estimate through the grids.
     pub fn transmittance(&self, ray: &Ray, tmax: f32, rng: &mut Rng, c: &mut Counters) -> f32 {
-        let tr = (-self.media.optical_depth(ray, 0.0, tmax)).exp();
+        let tr = (-self.media.optical_depth(ray, tmax)).exp();
         if tr <= 0.0 || !self.media.crosses_grids(ray, tmax) {
             return tr;
         }
@@ -314,7 +314,7 @@ pub(crate) mod tests {
                     .unwrap_or(f32::INFINITY)
             })
             .collect();
-        let tr = |t: f32| (-media.optical_depth(&ray, 0.0, t) as f64).exp();
+        let tr = |t: f32| (-media.optical_depth(&ray, t) as f64).exp();
         let (d, escape_err) = ks_against(&mut samples, tr, tmax);
         assert!(d < 1.95 / (n as f64).sqrt(), "KS D = {d}");
         let p = tr(tmax);

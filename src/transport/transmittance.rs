@@ -16,7 +16,7 @@
 use smallvec::SmallVec;
 
 use crate::core::Ray;
-use crate::media::Media;
+use crate::media::Chords;
 use crate::sampling::Rng;
 use crate::settings::MAX_TR_SAMPLES;
 use crate::transport::freepath::{FreePath, RatioSteps, Walk};
@@ -247,10 +247,12 @@ impl StratPixel<'_> {
 }
 
 /// The camera-transmittance factor of eq. 2: transmittance from the origin of a camera
-/// segment's `ray` to t, the homogeneous media's exact exp(-tau) times this pass's
-/// estimate `grids` of the density grids' share (`SegmentTr::eval`).
-pub fn camera_tr(media: &Media, ray: &Ray, grids: &SegmentTr, t: f32) -> f32 {
-    (-media.optical_depth(ray, 0.0, t)).exp() * grids.eval(t)
+/// segment to t, the homogeneous media's exact exp(-tau) (from their `chords` along the
+/// segment's ray) times this pass's estimate `grids` of the density grids' share
+/// (`SegmentTr::eval`).
+#[inline]
+pub fn camera_tr(chords: &Chords, grids: &SegmentTr, t: f32) -> f32 {
+    (-chords.optical_depth(t)).exp() * grids.eval(t)
 }
 
 #[cfg(test)]
