@@ -72,14 +72,19 @@ impl PhotonMap {
         let c = cell_of(x, self.cell);
         let mut seen = [u64::MAX; 27];
         let mut k = 0;
+        // Bit b mod 64 of each bucket read: the list is searched only when that bit is
+        // set, not 351 comparisons a lookup.
+        let mut seen_bits = 0u64;
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
                     let b = hash(c + IVec3::new(dx, dy, dz)) & self.mask;
                     // Two cells may share a bucket: read each bucket once.
-                    if seen[..k].contains(&b) {
+                    let bit = 1u64 << (b & 63);
+                    if seen_bits & bit != 0 && seen[..k].contains(&b) {
                         continue;
                     }
+                    seen_bits |= bit;
                     seen[k] = b;
                     k += 1;
                     let (s, e) = (self.starts[b as usize], self.starts[b as usize + 1]);
@@ -212,6 +217,52 @@ mod tests {
         assert!(outside.l.x > 0.0 && outside.d == -outside.l, "{outside:?}");
         let inside = at(2.0 - 0.75 * r);
         assert!(inside.d.x > 0.0, "{inside:?}");
+    }
+
+    /// A lookup sums each photon within r once, however the 27 cells fall into buckets:
+    /// against a sum over all photons, with 64 buckets (cells share buckets at most
+    /// lookups) and with a table too big for that.
+    #[test]
+    fn lookups_read_each_photon_within_r_once() {
+        let mut rng = Rng::new(11, 2);
+        let mut v = || Vec3::new(rng.f32(), rng.f32(), rng.f32());
+        let r = 0.25;
+        for n in [20, 3000] {
+            let photons: Vec<Photon> = (0..n)
+                .map(|_| {
+                    let p = (v() - Vec3::splat(0.5)) * 2.0;
+                    Photon::new(p, Vec3::Y, v() + Vec3::splat(0.1), false)
+                })
+                .collect();
+            let map = PhotonMap::build(&photons, r);
+            let mut shared = 0;
+            for _ in 0..300 {
+                let x = (v() - Vec3::splat(0.5)) * 2.0;
+                let c = cell_of(x, r);
+                let mut buckets: Vec<u64> = (0..27)
+                    .map(|i| hash(c + IVec3::new(i % 3 - 1, i / 3 % 3 - 1, i / 9 - 1)) & map.mask)
+                    .collect();
+                buckets.sort();
+                buckets.dedup();
+                shared += usize::from(buckets.len() < 27);
+                let mut brute = Vec3::ZERO;
+                for p in &photons {
+                    if (Vec3::from(p.position) - x).length_squared() < r * r {
+                        brute += Vec3::from(p.power);
+                    }
+                }
+                let brute = Vec3::ONE / (std::f32::consts::PI.powi(2) * r * r) * brute;
+                let got = map.radiance(x, Vec3::Y, Vec3::ONE, &mut 0);
+                assert!(
+                    (got - brute).abs().max_element() <= 1e-5 * brute.max_element().max(1.0),
+                    "{got} vs {brute}"
+                );
+            }
+            // The small table shares buckets at most lookups; the big one at few.
+            if n == 20 {
+                assert!(shared > 200, "{shared}");
+            }
+        }
     }
 
     /// Split maps: half the photons smooth, half sharp, uniform over the plane; the two
