@@ -496,7 +496,12 @@ impl CameraTracer<'_> {
         let walks = self.walks(ray, t_surf, st.in_glass, c);
         let walks = walks.as_deref();
         let gtr = self.grid_transmittance(ray, t_surf, st.in_glass, walks, rng, c, strat);
-        let chords = self.media.chords(ray);
+        // A segment inside glass crosses no media (as for its walks and spans).
+        let chords = if st.in_glass {
+            Chords::default()
+        } else {
+            self.media.chords(ray)
+        };
         // Media spans, wanted by NEE and by segments after a bounce (the beam BVH).
         let spans = if !st.in_glass && (self.direct.is_some() || primary.is_none()) {
             self.media.spans(ray, t_surf)
