@@ -25,6 +25,8 @@ const FP_EPS: f32 = 1.1920929e-7;
 // collisions together): a guard against a walk that stops advancing, never reached in
 // practice.
 const FP_MAX_ITERS: u32 = 4194304u;
+// `transport::freepath::ROULETTE_BELOW` (a test keeps the two equal).
+const ROULETTE_BELOW: f32 = 0.02;
 
 // `majorant::Node`: children are 8 consecutive nodes, `first_child` counts from the
 // grid's root (0: a leaf).
@@ -77,6 +79,18 @@ fn rng_next(r: ptr<function, Rng>) -> u32 {
 // Uniform in [0, 1), 24 bits, as `Rng::f32`.
 fn rng_f32(r: ptr<function, Rng>) -> f32 {
     return f32(rng_next(r) >> 8u) * (1.0 / 16777216.0);
+}
+
+// Russian roulette on one grid's ratio-tracking product, `transport::freepath::roulette`:
+// below ROULETTE_BELOW it becomes ROULETTE_BELOW with probability tr / ROULETTE_BELOW, else 0.
+fn roulette(tr: f32, r: ptr<function, Rng>) -> f32 {
+    if tr >= ROULETTE_BELOW || tr <= 0.0 {
+        return tr;
+    }
+    if rng_f32(r) * ROULETTE_BELOW < tr {
+        return ROULETTE_BELOW;
+    }
+    return 0.0;
 }
 
 // The stream for (key, stream), seeded as pcg32's srandom.
@@ -211,7 +225,8 @@ struct Track {
 // Tracking through every grid over [0, tmax] with the realization keyed by `seed`:
 // `kind` FP_DELTA draws a free path (`FreePath::sample_grids`; later grids are tracked
 // only up to the nearest collision so far), FP_RATIO multiplies 1 - sigma_t / majorant
-// over the tentative collisions (`FreePath::ratio_transmittance`). The optical depth left
+// over the tentative collisions, each grid's product through the roulette
+// (`FreePath::ratio_transmittance`). The optical depth left
 // is carried across a grid's segments; segments of majorant 0 are skipped.
 fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Track {
     var out = Track(tmax, false, 1.0, 0u, 0u, false);
@@ -221,6 +236,8 @@ fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Trac
     var rng: Rng;
     var tau = 0.0;
     var tc = 0.0;
+    // This grid's ratio-tracking product (each grid's goes through the roulette alone).
+    var gtr = 1.0;
     var started = false;
     var in_seg = false;
     var iters = 0u;
@@ -233,10 +250,12 @@ fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Trac
             w = walk_begin(gi, o, d, limit);
             rng = rng_new(seed, gi);
             tau = -log(1.0 - rng_f32(&rng));
+            gtr = 1.0;
             started = true;
             in_seg = false;
         } else if !in_seg {
             if w.done {
+                out.tr *= gtr;
                 gi += 1u;
                 started = false;
             } else if walk_step(&w) {
@@ -271,9 +290,13 @@ fn fp_track(o: vec3<f32>, d: vec3<f32>, tmax: f32, seed: u32, kind: u32) -> Trac
                     }
                 } else {
                     out.lookups += 1u;
-                    out.tr *= max(1.0 - grid_sigma_t(gi, p) / w.maj, 0.0);
-                    if out.tr <= 0.0 {
-                        gi = params.grid_count;
+                    gtr = roulette(gtr * max(1.0 - grid_sigma_t(gi, p) / w.maj, 0.0), &rng);
+                    if gtr <= 0.0 {
+                        // On to the next grid, not to the end: a later grid's tentative
+                        // collisions stay those of the realization at every t.
+                        out.tr = 0.0;
+                        gi += 1u;
+                        started = false;
                     }
                 }
                 tau = -log(1.0 - rng_f32(&rng));

@@ -85,7 +85,7 @@ fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Nested, u
     let ray = &s.ray;
     let mut evals = 0;
     let mut l = Nested::default();
-    for span in media.spans(ray, s.t_surf) {
+    for span in media.spans(ray, s.tr.seen_until(s.t_surf)) {
         let tr = |t| camera_tr(&s.chords, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
         l += map.nested_radiance(ray, span, scatter, tr, &mut evals);

@@ -55,7 +55,12 @@ pub fn splat(
         }
     }
     let origin = cam.origin();
-    let rays = Rays::new(primaries.par_iter().map(|p| (p.dir, p.t_surf)));
+    // Crossings past where a segment's transmittance estimate is 0 weigh nothing.
+    let rays = Rays::new(
+        primaries
+            .par_iter()
+            .map(|p| (p.dir, p.tr.seen_until(p.t_surf))),
+    );
     let mut img = vec![Nested::default(); w * h];
     // Each band writes its rows of the image in place: no serial assembly after.
     let evals = img

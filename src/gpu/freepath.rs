@@ -397,4 +397,14 @@ mod tests {
         // The library alone is what other kernels append.
         assert!(SHADER.contains(FREEPATH_WGSL));
     }
+
+    /// The shader's roulette threshold is the CPU's.
+    #[test]
+    fn roulette_threshold_matches_the_cpu() {
+        let line = format!(
+            "const ROULETTE_BELOW: f32 = {:?};",
+            crate::transport::freepath::ROULETTE_BELOW
+        );
+        assert!(FREEPATH_WGSL.contains(&line), "{line}");
+    }
 }

@@ -445,6 +445,11 @@ impl CameraTracer<'_> {
             };
             let material = h.material;
             if let Material::Lambert { reflectance } = material {
+                // Nothing of the surface reaches the camera (an opaque transmittance
+                // estimate): no photon lookup, no shadow ray.
+                if st.beta.max_element() <= 0.0 {
+                    break;
+                }
                 let lo = st.beta * self.diffuse(&h, ray.d, reflectance, rng, c);
                 l += lo.l;
                 out.nested += lo.d;

@@ -126,6 +126,29 @@ impl SegmentTr {
         }
     }
 
+    /// Where the estimate falls to 0 for good: it is 0 at every t past this (infinite
+    /// when it never is). Beam crossings and light samples past it weigh nothing, so
+    /// the estimates leave them out.
+    pub fn zero_from(&self) -> f32 {
+        match self {
+            SegmentTr::Clear => f32::INFINITY,
+            SegmentTr::FreePaths { lengths, m } => {
+                lengths[..*m as usize].iter().copied().fold(0.0, f32::max)
+            }
+            SegmentTr::Ratio(steps) => steps
+                .iter()
+                .find(|s| s.1 <= 0.0)
+                .map_or(f32::INFINITY, |s| s.0),
+        }
+    }
+
+    /// The part of a segment [0, t_surf) where the estimate can be above 0: it ends just
+    /// past [`Self::zero_from`] (a ratio step applies after its t, so the estimate at
+    /// that t itself is not yet 0).
+    pub fn seen_until(&self, t_surf: f32) -> f32 {
+        t_surf.min(self.zero_from().next_up())
+    }
+
     /// The estimate as a step function: (t_k, value for t > t_k), t_k ascending, appended
     /// to `out` (before the first step the value is 1). What the GPU estimate reads.
     pub fn steps(&self, out: &mut Vec<[f32; 2]>) {
@@ -517,6 +540,92 @@ mod estimator_tests {
                 "t={t}: {mean} vs {truth}"
             );
         }
+    }
+
+    /// Where the transmittance falls below 0.001, ratio tracking with its roulette
+    /// ([`crate::transport::freepath::roulette`]) still averages to the quadrature, for the
+    /// camera's step estimate and for shadow rays (5 standard errors of the sample mean),
+    /// and the roulette ends most trackings before the far end (without it, a product is
+    /// 0 only where a lookup meets its leaf's majorant exactly).
+    #[test]
+    fn ratio_tracking_with_roulette_is_unbiased_where_light_is_nearly_gone() {
+        let media = super::tests::ramp_media_with(0.0, 5.0);
+        let ray = setup().1;
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Adaptive,
+        };
+        let tmax = 3.0;
+        let quad = QuadTr::new(&media, &ray, tmax);
+        assert!(quad.tr(tmax) < 0.001, "{}", quad.tr(tmax));
+        let mut rng = Rng::new(41, 1);
+        let mut c = Counters::default();
+        let n = 40_000;
+        let est: Vec<SegmentTr> = (0..n)
+            .map(|_| SegmentTr::ratio(&fp, &ray, tmax, 1, &mut rng, &mut c))
+            .collect();
+        let mean_se = |v: &[f64]| {
+            let mean = v.iter().sum::<f64>() / n as f64;
+            let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            (mean, (var / n as f64).sqrt())
+        };
+        for t in [1.2f32, 1.8, 2.4, 3.0] {
+            let truth = quad.tr(t);
+            let (mean, se) = mean_se(&est.iter().map(|e| e.eval(t) as f64).collect::<Vec<_>>());
+            assert!(
+                (mean - truth).abs() < 5.0 * se + 1e-5,
+                "steps t={t}: {mean} vs {truth}"
+            );
+            let shadow: Vec<f64> = (0..n)
+                .map(|_| fp.transmittance(&ray, t, &mut rng, &mut c) as f64)
+                .collect();
+            let (mean, se) = mean_se(&shadow);
+            assert!(
+                (mean - truth).abs() < 5.0 * se + 1e-5,
+                "shadow t={t}: {mean} vs {truth}"
+            );
+        }
+        let ended = est.iter().filter(|e| e.zero_from() < tmax).count();
+        assert!(
+            ended > n / 2,
+            "{ended} of {n} trackings ended by the roulette"
+        );
+    }
+
+    /// Past `zero_from` every estimate is 0 and at it not yet (ratio steps apply after
+    /// their t, free paths reach their own end), so `seen_until` drops only crossings
+    /// that weigh nothing.
+    #[test]
+    fn estimates_are_zero_exactly_past_zero_from() {
+        let media = super::tests::ramp_media_with(0.0, 4.0);
+        let ray = setup().1;
+        let fp = FreePath {
+            media: &media,
+            mode: Mode::Adaptive,
+        };
+        let mut rng = Rng::new(43, 1);
+        let mut c = Counters::default();
+        let (mut ended, tmax) = (0, 3.0);
+        for k in 0..4000 {
+            let e = if k % 2 == 0 {
+                SegmentTr::ratio(&fp, &ray, tmax, 4, &mut rng, &mut c)
+            } else {
+                SegmentTr::random(&fp, &ray, tmax, 4, &mut rng, &mut c)
+            };
+            let z = e.zero_from();
+            let mut steps = Vec::new();
+            e.steps(&mut steps);
+            if z.is_finite() {
+                ended += 1;
+                assert!(e.eval(z) > 0.0 && e.eval(z.next_up()) == 0.0, "{e:?}");
+                assert_eq!(e.seen_until(f32::INFINITY), z.next_up());
+                assert!(steps.iter().all(|s| s[0] <= z || s[1] == 0.0), "{e:?}");
+            } else {
+                assert!(steps.iter().all(|s| s[1] > 0.0), "{e:?}");
+                assert_eq!(e.seen_until(tmax), tmax);
+            }
+        }
+        assert!(ended > 1000, "{ended}");
     }
 
     /// The mean of M = 4 ratio trackings is unbiased at several distances (5 standard
