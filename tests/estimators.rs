@@ -154,9 +154,11 @@ fn splat_finds_every_pair_the_gather_finds() {
             let (mut diff, mut total) = (0.0f64, 0.0f64);
             for (p, a) in t.camera.primaries.iter().zip(&splat) {
                 let ray = Ray::new(r.camera().origin(), p.dir);
+                // The segment the splat draws: crossings past where the transmittance
+                // estimate is 0 weigh nothing and are left out of both.
                 let b = map.nested_radiance(
                     &ray,
-                    (0.0, p.t_surf),
+                    (0.0, p.tr.seen_until(p.t_surf)),
                     |x, cos| media.in_scatter(x, cos),
                     |t| camera_tr(&p.chords, &p.tr, t),
                     &mut evals,

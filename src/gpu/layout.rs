@@ -272,8 +272,9 @@ impl SegmentUpload {
         out
     }
 
-    /// The segment [0, t_surf) of `ray`, ended where it leaves the media's bounds
-    /// (beyond, sigma_s and so every term is 0; an infinite end also upsets some shader
+    /// The segment [0, t_surf) of `ray`, ended where it leaves the media's bounds or,
+    /// with steps, where they fall to 0 for good (beyond, sigma_s or the transmittance and
+    /// so every term is 0; an infinite end also upsets some shader
     /// compilers: lavapipe dropped crossings on segments ending at f32::MAX), with its
     /// transmittance steps (if given) appended. None for a segment that misses the bounds:
     /// it carries no beam radiance.
@@ -286,7 +287,9 @@ impl SegmentUpload {
         tr: Option<&SegmentTr>,
         seed: u32,
     ) -> Option<Segment> {
-        let (_, t1) = ray_box(&ray, b, 0.0, t_surf)?;
+        // With the steps, as on the CPU: nothing past where the estimate is 0.
+        let t_end = tr.map_or(t_surf, |tr| tr.seen_until(t_surf));
+        let (_, t1) = ray_box(&ray, b, 0.0, t_end)?;
         let tr_first = self.tr_steps.len() as u32;
         if let Some(tr) = tr {
             tr.steps(&mut self.tr_steps);
