@@ -290,6 +290,8 @@ impl FreePath<'_> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::media::{MediumDesc, Phase};
+    use glam::Vec3;
 
     /// The roulette keeps a product's mean (5 standard errors of sqrt(tr (c - tr) / n),
     /// its variance in closed form) and gives c or 0 below c = ROULETTE_BELOW; at or
@@ -314,8 +316,6 @@ pub(crate) mod tests {
             assert_eq!(roulette(tr, &mut rng), tr);
         }
     }
-    use crate::media::{MediumDesc, Phase};
-    use glam::Vec3;
 
     /// KS statistic of free paths against a CDF 1 - Tr(t); Tr(tmax) is the escape mass.
     pub(crate) fn ks_against(
