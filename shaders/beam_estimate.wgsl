@@ -51,7 +51,7 @@ struct BeamPiece {
     dir: vec3<f32>,
     s1: f32,
     power: vec3<f32>,
-    beam: u32,
+    scale: f32,
 }
 
 struct BeamQuad {
@@ -128,7 +128,7 @@ struct Term {
 // and the same half-open edge rule, t0 <= t < t1, s0 <= s < s1, d^2 < r^2
 // (sin^2 theta >= 1e-10: not parallel).
 fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
-    let r = params.radius;
+    let r = params.radius * p.scale;
     let w = seg.dir;
     let psi = p.dir;
     let b = dot(w, psi);

@@ -16,7 +16,8 @@ use crate::plan::{PassPlan, Plan};
 use crate::scene::{Light, Scene};
 use crate::settings::TrMode;
 use crate::settings::{
-    Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS, SMOOTH_PHOTON_SCALE,
+    Method, Radius, RenderSettings, AUTO_BEAM_PIXELS, AUTO_PHOTON_PIXELS, SMOOTH_BEAM_SCALE,
+    SMOOTH_PHOTON_SCALE,
 };
 use crate::transport::camera::{CameraTracer, Pinhole};
 use crate::transport::direct::Direct;
@@ -186,7 +187,11 @@ impl Tracer {
             geometry: &self.geometry,
             media: &self.media,
             free_path,
-            beam_margin: p.beam_radius,
+            beam_radius: p.beam_radius,
+            smooth_beam_scale: match s.method {
+                Method::Hybrid => SMOOTH_BEAM_SCALE,
+                Method::Ppb => 1.0,
+            },
             skip_direct: s.method == Method::Hybrid,
         };
         let light = lt.trace_pass(p.seed, p.index, p.light_paths);

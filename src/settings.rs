@@ -226,3 +226,13 @@ pub const AUTO_PHOTON_PIXELS: f32 = 1.5;
 /// R1 of the smooth photons (after a diffuse or medium scattering) over the photon radius
 /// R1: 15 pixels (docs/benchmarks.md: measured at equal time).
 pub const SMOOTH_PHOTON_SCALE: f32 = 10.0;
+/// Kernel radius of the smooth beams (light that scattered [`SMOOTH_BEAM_AFTER`] times or
+/// more, in media or on diffuse surfaces, before the beam) over the pass's beam radius,
+/// with the hybrid method. Such light varies slowly, and each of its beams, dear to trace
+/// through a dense medium, then serves more camera rays (docs/benchmarks.md, "Smooth
+/// beams"). The pure method keeps one radius for every beam, as the paper does.
+pub const SMOOTH_BEAM_SCALE: f32 = 2.0;
+/// Scatterings after which a light path's beams are smooth: 4, so that thin media, whose
+/// paths rarely scatter that often, pay almost nothing for the wider kernels (fog-box: 9 %
+/// more beam evaluations, against 46 % from the second scattering on).
+pub const SMOOTH_BEAM_AFTER: u32 = 4;

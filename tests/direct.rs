@@ -57,7 +57,8 @@ fn light_through_glass_reaches_the_floor_only_through_photons() {
             geometry: &geometry,
             media: &media,
             free_path,
-            beam_margin: 0.01,
+            beam_radius: 0.01,
+            smooth_beam_scale: 1.0,
             skip_direct,
         };
         let pass = tracer.trace_pass(7, 1, 200_000);

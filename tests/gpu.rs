@@ -515,7 +515,7 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
         let cpu = eq2::term(
             &ray,
             (0.0, T_SURF),
-            &BeamPiece::whole(&b, 0),
+            &BeamPiece::whole(&b),
             R,
             |x, cos| media.in_scatter(x, cos),
             |t| ppb::transport::transmittance::camera_tr(&chords, tr, t),
@@ -643,7 +643,7 @@ fn gpu_box_rule_matches_cpu_for_rays_in_a_face() {
     let cpu = eq2::term(
         &ray,
         (0.0, T_SURF),
-        &BeamPiece::whole(&b, 0),
+        &BeamPiece::whole(&b),
         R,
         |x, cos| media.in_scatter(x, cos),
         tr,

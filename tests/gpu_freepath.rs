@@ -411,7 +411,7 @@ fn beam_estimate_tracks_camera_transmittance() {
         let at = ray.at(tc) + Vec3::new(0.0, 0.01, 0.0);
         let beam = Beam::new(at - Vec3::Z * 0.4, Vec3::Z, 0.8, Vec3::ONE);
         let scatter = |x, cos| media.in_scatter(x, cos);
-        let piece = BeamPiece::whole(&beam, 0);
+        let piece = BeamPiece::whole(&beam);
         let base = eq2::term(&ray, (0.0, tmax), &piece, R, scatter, |_| 1.0)
             .expect("the pair counts")
             .x as f64;

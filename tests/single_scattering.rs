@@ -192,7 +192,8 @@ fn estimate(
         geometry: &geometry,
         media: &media,
         free_path: fp,
-        beam_margin: radius,
+        beam_radius: radius,
+        smooth_beam_scale: 1.0,
         skip_direct: false,
     };
     let values: Vec<f64> = (1..=passes)

@@ -38,15 +38,15 @@ pub struct BvhNode {
 }
 
 impl BeamPiece {
-    /// All of beam `beam` (number `index`): s in [0, length).
-    pub fn whole(beam: &Beam, index: u32) -> Self {
+    /// All of `beam`: s in [0, length).
+    pub fn whole(beam: &Beam) -> Self {
         BeamPiece {
             origin: beam.origin,
             s0: 0.0,
             dir: beam.dir,
             s1: beam.length,
             power: beam.power,
-            beam: index,
+            scale: beam.scale,
         }
     }
 }
@@ -55,7 +55,10 @@ pub struct BeamMap {
     /// In the BVH's primitive order, so leaves index them directly.
     pieces: Vec<BeamPiece>,
     bvh: Option<Bvh2>,
+    /// The pass's beam radius; a piece's kernel reaches `radius * piece.scale`.
     radius: f32,
+    /// The largest `scale` of a piece: a query tests candidates at that radius first.
+    max_scale: f32,
 }
 
 /// Appends obvhs node `n`'s subtree in pre-order; recursion depth is the tree's depth.
@@ -80,11 +83,13 @@ fn preorder(bvh: &Bvh2, n: u32, out: &mut Vec<BvhNode>) {
 
 impl BeamMap {
     pub fn build(beams: &[Beam], radius: f32) -> Self {
-        let max_len = PIECE_RADII * radius;
         let mut pieces = Vec::with_capacity(beams.len() * 2);
         let mut boxes = Vec::with_capacity(beams.len() * 2);
-        for (i, b) in beams.iter().enumerate() {
-            let n = (b.length / max_len).ceil().max(1.0) as u32;
+        let mut max_scale = 1.0f32;
+        for b in beams {
+            let r = radius * b.scale;
+            max_scale = max_scale.max(b.scale);
+            let n = (b.length / (PIECE_RADII * r)).ceil().max(1.0) as u32;
             let step = b.length / n as f32;
             let (y, psi) = (Vec3A::from(b.origin), Vec3A::from(b.dir));
             for k in 0..n {
@@ -100,9 +105,9 @@ impl BeamMap {
                 pieces.push(BeamPiece {
                     s0,
                     s1,
-                    ..BeamPiece::whole(b, i as u32)
+                    ..BeamPiece::whole(b)
                 });
-                boxes.push(Aabb::new(a.min(c) - radius, a.max(c) + radius));
+                boxes.push(Aabb::new(a.min(c) - r, a.max(c) + r));
             }
         }
         let bvh = (!boxes.is_empty()).then(|| {
@@ -123,6 +128,7 @@ impl BeamMap {
             pieces,
             bvh,
             radius,
+            max_scale,
         }
     }
 
@@ -181,12 +187,16 @@ impl BeamMap {
             return sum;
         };
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
-        let r = self.radius;
+        // Candidates count at the widest kernel; each then at its own radius.
         let visit = |piece: &BeamPiece, c: &Crossing| {
-            *evaluations += 1;
-            sum.add(counted_term(ray, c, piece, r, &in_scatter, &tr));
+            let r = self.radius * piece.scale;
+            if c.dist2 < r * r {
+                *evaluations += 1;
+                sum.add(counted_term(ray, c, piece, r, &in_scatter, &tr));
+            }
         };
-        let mut segment = Segment::new(simd::isa(), ray, (t0, t1), r, &self.pieces[0], visit);
+        let widest = self.radius * self.max_scale;
+        let mut segment = Segment::new(simd::isa(), ray, (t0, t1), widest, &self.pieces[0], visit);
         bvh.ray_traverse_anyhit(q, |_, id| segment.push(&self.pieces[id]));
         segment.finish();
         sum
@@ -206,15 +216,26 @@ mod tests {
     /// errors of the trial means.
     #[test]
     fn estimate_recovers_beam_length_density() {
+        recovers_beam_length_density(|_| 1.0);
+    }
+
+    /// The same with every third beam's kernel 2.5 times as wide (smooth beams): each
+    /// kernel integrates to 1 at its own radius, so the mean is the same.
+    #[test]
+    fn estimate_with_wider_kernels_recovers_beam_length_density() {
+        recovers_beam_length_density(|i| if i % 3 == 0 { 2.5 } else { 1.0 });
+    }
+
+    fn recovers_beam_length_density(scale: impl Fn(usize) -> f32) {
         let mut rng = Rng::new(11, 2);
         let (n, len, trials, probes, seg) = (30_000, 0.5f32, 40, 20, 0.6f32);
         let mut means = Vec::with_capacity(trials);
         for _ in 0..trials {
             let beams: Vec<Beam> = (0..n)
-                .map(|_| {
+                .map(|i| {
                     let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
                     let d = uniform_sphere(rng.vec2());
-                    Beam::new(c - d * (len * 0.5), d, len, Vec3::ONE)
+                    Beam::new(c - d * (len * 0.5), d, len, Vec3::ONE).scaled(scale(i))
                 })
                 .collect();
             let map = BeamMap::build(&beams, 0.05);
@@ -242,20 +263,22 @@ mod tests {
         assert!(bound < 0.05 * expect, "test too weak: {bound}");
     }
 
-    /// The BVH query finds exactly the crossings a brute-force loop over all beams finds.
+    /// The BVH query finds exactly the crossings a brute-force loop over all beams finds,
+    /// each beam at its own radius (every third one 2.5 times as wide).
     #[test]
     fn bvh_matches_brute_force() {
         let mut rng = Rng::new(11, 2);
         let beams: Vec<Beam> = (0..20000)
-            .map(|_| {
+            .map(|i| {
                 let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
                 let d = uniform_sphere(rng.vec2());
-                Beam::new(c - d * 0.25, d, 0.5, Vec3::ONE)
+                let scale = if i % 3 == 0 { 2.5 } else { 1.0 };
+                Beam::new(c - d * 0.25, d, 0.5, Vec3::ONE).scaled(scale)
             })
             .collect();
         let r = 0.05;
         let map = BeamMap::build(&beams, r);
-        let mut e = 0;
+        let (mut e, mut brute) = (0, 0);
         for _ in 0..50 {
             let o = (Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0) * 0.2;
             let d = uniform_sphere(rng.vec2());
@@ -265,14 +288,17 @@ mod tests {
                 .x;
             let mut b = 0.0;
             for bm in &beams {
+                let r = r * bm.scale;
                 if let Some(c) = crossing(o, d, Vec3::from(bm.origin), Vec3::from(bm.dir)) {
                     if c.dist2 < r * r && c.t >= 0.0 && c.t < 0.6 && c.s >= 0.0 && c.s < bm.length {
                         b += kernel(c.dist2, r) / c.sin2.sqrt();
+                        brute += 1;
                     }
                 }
             }
             assert!((a - b).abs() < 1e-3 * b.max(1.0), "{a} vs {b}");
         }
+        assert_eq!(e, brute, "evaluations");
     }
 
     /// Each beam's pieces partition [0, length) exactly: the first starts at 0, each starts
@@ -289,14 +315,19 @@ mod tests {
             })
             .take(50)
             .collect();
+        // Each beam on its own line (y = its number), so its pieces are told by origin.
         let beams: Vec<Beam> = lengths
             .iter()
-            .map(|&l| Beam::new(Vec3::ZERO, Vec3::X, l, Vec3::ONE))
+            .enumerate()
+            .map(|(i, &l)| Beam::new(Vec3::Y * i as f32, Vec3::X, l, Vec3::ONE))
             .collect();
         let map = BeamMap::build(&beams, r);
         for (i, b) in beams.iter().enumerate() {
-            let mut mine: Vec<&BeamPiece> =
-                map.pieces().iter().filter(|p| p.beam == i as u32).collect();
+            let mut mine: Vec<&BeamPiece> = map
+                .pieces()
+                .iter()
+                .filter(|p| p.origin[1] == i as f32)
+                .collect();
             mine.sort_by(|a, b| a.s0.total_cmp(&b.s0));
             assert_eq!(mine[0].s0, 0.0);
             for w in mine.windows(2) {
@@ -338,7 +369,7 @@ mod tests {
             let map = BeamMap::build(&[b], r);
             let mut evals = 0;
             let got = map.radiance(&ray, 0.0, 2.0, scatter, tr, &mut evals);
-            let want = term(&ray, (0.0, 2.0), &BeamPiece::whole(&b, 0), r, scatter, tr);
+            let want = term(&ray, (0.0, 2.0), &BeamPiece::whole(&b), r, scatter, tr);
             assert_eq!(want.is_some(), counts, "case {k}");
             assert_eq!(evals, u64::from(counts), "case {k}");
             assert_eq!(got, want.unwrap_or(Rgb::ZERO), "case {k}");

@@ -28,7 +28,8 @@ pub struct BeamPiece {
     pub dir: [f32; 3],
     pub s1: f32,
     pub power: [f32; 3],
-    pub beam: u32,
+    /// The beam's [`crate::transport::Beam::scale`]: its kernel radius over the pass's.
+    pub scale: f32,
 }
 
 /// The normalized 1D kernel of the squared distance d2 = d^2: 1/(2r) on the open interval
@@ -182,7 +183,7 @@ mod tests {
             dir: [0.0, 0.0, 1.0],
             s1: len,
             power: [3.0, 5.0, 7.0],
-            beam: 0,
+            scale: 1.0,
         }
     }
 
@@ -277,7 +278,7 @@ mod tests {
             dir: psi.into(),
             s1: 1.5,
             power: [3.0, 5.0, 7.0],
-            beam: 0,
+            scale: 1.0,
         };
         let got = term(&ray(), (0.0, 4.0), &piece, R, in_scatter, tr).unwrap();
         let want =

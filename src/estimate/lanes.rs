@@ -415,7 +415,7 @@ mod tests {
             dir: psi.into(),
             s1: 1.0 + v().y,
             power: [1.0; 3],
-            beam: 0,
+            scale: 1.0,
         };
         (o, rays, piece, r)
     }

@@ -42,7 +42,7 @@ pub fn splat(
     let reach = reach_per_radius(cam);
     let lines: Vec<Option<Line>> = beams
         .par_iter()
-        .map(|b| Line::project(cam, b, radius, reach))
+        .map(|b| Line::project(cam, b, radius * b.scale, reach))
         .collect();
     let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
     for (i, l) in lines.iter().enumerate() {
@@ -75,7 +75,8 @@ pub fn splat(
                 let Some(line) = &lines[bi as usize] else {
                     continue;
                 };
-                let piece = BeamPiece::whole(&beams[bi as usize], bi);
+                let piece = BeamPiece::whole(&beams[bi as usize]);
+                let radius = radius * piece.scale;
                 let fixed = Fixed::new(origin, &piece, radius);
                 for y in row0..row0 + rows {
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {

@@ -203,13 +203,13 @@ pub struct BeamQuad {
 }
 
 impl BeamQuad {
-    /// The quad of beam `index` whose film rectangle is `rect` (pixels, y down) on a
+    /// The quad of `beam` whose film rectangle is `rect` (pixels, y down) on a
     /// `width` x `height` image.
-    pub fn new(rect: [Vec2; 4], beam: &Beam, index: u32, width: u32, height: u32) -> Self {
+    pub fn new(rect: [Vec2; 4], beam: &Beam, width: u32, height: u32) -> Self {
         let (w, h) = (width as f32, height as f32);
         BeamQuad {
             corners: rect.map(|c| [2.0 * c.x / w - 1.0, 1.0 - 2.0 * c.y / h]),
-            piece: BeamPiece::whole(beam, index),
+            piece: BeamPiece::whole(beam),
         }
     }
 }

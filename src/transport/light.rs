@@ -13,6 +13,7 @@ use crate::geometry::{Geometry, EPS};
 use crate::media::Media;
 use crate::sampling::{Discrete, Rng, Stream};
 use crate::scene::{Light, Material};
+use crate::settings::SMOOTH_BEAM_AFTER;
 
 /// Lights with a discrete distribution proportional to their power.
 pub struct LightSampler {
@@ -89,9 +90,11 @@ pub struct LightTracer<'a> {
     pub geometry: &'a Geometry,
     pub media: &'a Media,
     pub free_path: FreePath<'a>,
-    /// How far (m) a beam reaches past each medium boundary it crosses: the pass's beam
-    /// radius. See [`LightTracer::store_beams`].
-    pub beam_margin: f32,
+    /// The pass's beam radius (m): how far a beam reaches past each medium boundary it
+    /// crosses (see [`LightTracer::store_beams`]).
+    pub beam_radius: f32,
+    /// Kernel radius of the smooth beams over `beam_radius` (1: one radius for all).
+    pub smooth_beam_scale: f32,
     /// Leave out what next-event estimation covers (the hybrid method): the beams of a
     /// path's first segment and the photons it ends in, before any scattering or
     /// specular event.
@@ -148,8 +151,9 @@ impl LightTracer<'_> {
         let mut in_glass = false;
         // Whether the path still runs straight from the light (what NEE covers).
         let mut direct = self.skip_direct;
-        // Whether the path has scattered diffusely or in a medium (its photons are smooth).
-        let mut smooth = false;
+        // How often the path has scattered diffusely or in a medium: its photons are smooth
+        // from the first, its beams from SMOOTH_BEAM_AFTER on.
+        let mut scatterings = 0u32;
         for _ in 0..MAX_DEPTH {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
@@ -166,7 +170,12 @@ impl LightTracer<'_> {
             };
             let t_end = collision.unwrap_or(t_surf);
             if !in_glass && !direct {
-                self.store_beams(&ray, t_end, power, out);
+                let scale = if scatterings >= SMOOTH_BEAM_AFTER {
+                    self.smooth_beam_scale
+                } else {
+                    1.0
+                };
+                self.store_beams(&ray, t_end, power, scale, out);
             }
             if let Some(t) = collision {
                 let p = ray.at(t);
@@ -178,7 +187,8 @@ impl LightTracer<'_> {
                     return;
                 }
                 power *= albedo / q;
-                (direct, smooth) = (false, true);
+                direct = false;
+                scatterings += 1;
                 let (u1, u2) = (rng.f32(), rng.f32());
                 ray = Ray::new(p, phase.sample(ray.d, u1, u2));
                 continue;
@@ -188,10 +198,11 @@ impl LightTracer<'_> {
             let side = if ray.d.dot(h.ng) < 0.0 { h.ng } else { -h.ng };
             if let Material::Lambert { .. } = material {
                 if !direct {
-                    out.photons.push(Photon::new(h.p, side, power, smooth));
+                    out.photons
+                        .push(Photon::new(h.p, side, power, scatterings > 0));
                     out.counters.photons += 1;
                 }
-                smooth = true;
+                scatterings += 1;
             }
             direct = false;
             let (u, u2) = (rng.f32(), rng.vec2());
@@ -209,8 +220,8 @@ impl LightTracer<'_> {
         }
     }
 
-    /// Stores the ray's stretches in media up to `t_end`, each reaching up to
-    /// [`Self::beam_margin`] past the medium boundaries it crosses (never before the ray's
+    /// Stores the ray's stretches in media up to `t_end` with kernels `scale` times the
+    /// pass's radius, each reaching up to its radius past the medium boundaries it crosses (never before the ray's
     /// origin nor past `t_end`). The kernel of eq. 2 reaches a beam's points within the
     /// radius of a camera point, so a camera point just inside a face would otherwise
     /// average the fluence with the empty outside and lose up to half of it (a bias of order
@@ -219,9 +230,11 @@ impl LightTracer<'_> {
     /// the extension removes that bias and adds nothing else. Beams that pass just outside
     /// a face without crossing it are not stored, so a bias of order r remains there
     /// (`tests/environment.rs` measures it).
-    fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, out: &mut LightPass) {
-        for (a, b) in self.media.padded_spans(ray, t_end, self.beam_margin) {
-            out.beams.push(Beam::new(ray.at(a), ray.d, b - a, power));
+    fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, scale: f32, out: &mut LightPass) {
+        let reach = self.beam_radius * scale;
+        for (a, b) in self.media.padded_spans(ray, t_end, reach) {
+            out.beams
+                .push(Beam::new(ray.at(a), ray.d, b - a, power).scaled(scale));
             out.counters.beams += 1;
         }
     }
@@ -232,4 +245,69 @@ impl LightTracer<'_> {
 /// side opposite its normal. Opaque surfaces always send the path back outside.
 pub fn enters_glass(material: &Material, dir: Vec3, ng: Vec3) -> bool {
     matches!(material, Material::Dielectric { .. }) && dir.dot(ng) < 0.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::majorant::Mode;
+    use crate::media::{MediumDesc, Phase};
+    use crate::scene::Scene;
+
+    /// A path's beams are sharp (scale 1) until it has scattered SMOOTH_BEAM_AFTER times,
+    /// then smooth. One path per pass inside a fog far larger than any path, so each of
+    /// its segments is one beam, stored in order: SMOOTH_BEAM_AFTER scales 1, then s.
+    #[test]
+    fn beams_turn_smooth_after_enough_scatterings() {
+        let medium = MediumDesc {
+            bounds: [Vec3::splat(-1e4), Vec3::splat(1e4)],
+            sigma_t: 1.0,
+            albedo: Vec3::splat(0.9),
+            phase: Phase::ISOTROPIC,
+        };
+        let light = Light::Point {
+            position: Vec3::ZERO,
+            intensity: Vec3::ONE,
+        };
+        let scene = Scene {
+            lights: vec![light],
+            media: vec![medium.clone()],
+            ..Default::default()
+        };
+        let media = Media::new(vec![medium]);
+        let geometry = Geometry::new(&scene).unwrap();
+        let lights = LightSampler::new(&scene.lights, [Vec3::splat(-1.0), Vec3::ONE]);
+        let tracer = LightTracer {
+            lights: &lights,
+            geometry: &geometry,
+            media: &media,
+            free_path: FreePath {
+                media: &media,
+                mode: Mode::Woodcock,
+            },
+            beam_radius: 0.01,
+            smooth_beam_scale: 3.0,
+            skip_direct: false,
+        };
+        let mut smooth = 0;
+        for pass in 1..=300 {
+            let scales: Vec<f32> = tracer
+                .trace_pass(7, pass, 1)
+                .beams
+                .iter()
+                .map(|b| b.scale)
+                .collect();
+            let after = SMOOTH_BEAM_AFTER as usize;
+            for (k, &s) in scales.iter().enumerate() {
+                assert_eq!(
+                    s,
+                    if k < after { 1.0 } else { 3.0 },
+                    "pass {pass}: {scales:?}"
+                );
+            }
+            smooth += scales.len().saturating_sub(after);
+        }
+        // With albedo 0.9 a path scatters 9 times on average: most beams are smooth.
+        assert!(smooth > 1000, "{smooth} smooth beams");
+    }
 }

@@ -35,7 +35,9 @@ pub struct Beam {
     pub origin: [f32; 3],
     pub length: f32,
     pub dir: [f32; 3],
-    pub _pad: f32,
+    /// Its kernel's radius as a multiple of the pass's beam radius: 1, or
+    /// [`crate::settings::SMOOTH_BEAM_SCALE`] for smooth light (`LightTracer::store_beams`).
+    pub scale: f32,
     /// W per channel.
     pub power: [f32; 3],
     pub _pad2: f32,
@@ -64,10 +66,15 @@ impl Beam {
             origin: origin.into(),
             length,
             dir: dir.into(),
-            _pad: 0.0,
+            scale: 1.0,
             power: power.into(),
             _pad2: 0.0,
         }
+    }
+
+    /// The beam with its kernel `scale` times the pass's radius.
+    pub fn scaled(self, scale: f32) -> Self {
+        Beam { scale, ..self }
     }
 }
 

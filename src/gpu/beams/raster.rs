@@ -144,10 +144,9 @@ impl GpuBeams {
         let quads: Vec<BeamQuad> = t
             .beams
             .par_iter()
-            .enumerate()
-            .filter_map(|(i, b)| {
-                let line = Line::project(cam, b, radius, reach)?;
-                Some(BeamQuad::new(line.rectangle(), b, i as u32, w, h))
+            .filter_map(|b| {
+                let line = Line::project(cam, b, radius * b.scale, reach)?;
+                Some(BeamQuad::new(line.rectangle(), b, w, h))
             })
             .collect();
         r.primaries
