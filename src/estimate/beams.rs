@@ -57,8 +57,6 @@ pub struct BeamMap {
     bvh: Option<Bvh2>,
     /// The pass's beam radius; a piece's kernel reaches `radius * piece.scale`.
     radius: f32,
-    /// The largest `scale` of a piece: a query tests candidates at that radius first.
-    max_scale: f32,
 }
 
 /// Appends obvhs node `n`'s subtree in pre-order; recursion depth is the tree's depth.
@@ -85,10 +83,8 @@ impl BeamMap {
     pub fn build(beams: &[Beam], radius: f32) -> Self {
         let mut pieces = Vec::with_capacity(beams.len() * 2);
         let mut boxes = Vec::with_capacity(beams.len() * 2);
-        let mut max_scale = 1.0f32;
         for b in beams {
             let r = radius * b.scale;
-            max_scale = max_scale.max(b.scale);
             let n = (b.length / (PIECE_RADII * r)).ceil().max(1.0) as u32;
             let step = b.length / n as f32;
             let (y, psi) = (Vec3A::from(b.origin), Vec3A::from(b.dir));
@@ -128,7 +124,6 @@ impl BeamMap {
             pieces,
             bvh,
             radius,
-            max_scale,
         }
     }
 
@@ -187,16 +182,19 @@ impl BeamMap {
             return sum;
         };
         let q = obvhs::ray::Ray::new(Vec3A::from(ray.o), Vec3A::from(ray.d), t0, t1);
-        // Candidates count at the widest kernel; each then at its own radius.
+        let r = self.radius;
         let visit = |piece: &BeamPiece, c: &Crossing| {
-            let r = self.radius * piece.scale;
-            if c.dist2 < r * r {
-                *evaluations += 1;
-                sum.add(counted_term(ray, c, piece, r, &in_scatter, &tr));
-            }
+            *evaluations += 1;
+            sum.add(counted_term(
+                ray,
+                c,
+                piece,
+                r * piece.scale,
+                &in_scatter,
+                &tr,
+            ));
         };
-        let widest = self.radius * self.max_scale;
-        let mut segment = Segment::new(simd::isa(), ray, (t0, t1), widest, &self.pieces[0], visit);
+        let mut segment = Segment::new(simd::isa(), ray, (t0, t1), r, &self.pieces[0], visit);
         bvh.ray_traverse_anyhit(q, |_, id| segment.push(&self.pieces[id]));
         segment.finish();
         sum

@@ -58,6 +58,8 @@ struct Pairs<const N: usize> {
     psi: [[f32; N]; 3],
     t: [[f32; N]; 2],
     s: [[f32; N]; 2],
+    /// The pieces' kernel scales: a pair counts within r times its piece's.
+    scale: [f32; N],
 }
 
 impl<const N: usize> Pairs<N> {
@@ -70,6 +72,7 @@ impl<const N: usize> Pairs<N> {
             psi: [z; 3],
             t: [z; 2],
             s: [z; 2],
+            scale: z,
         }
     }
 
@@ -89,6 +92,7 @@ impl<const N: usize> Pairs<N> {
             (self.y[i][k], self.psi[i][k]) = (p.origin[i], p.dir[i]);
         }
         (self.s[0][k], self.s[1][k]) = (p.s0, p.s1);
+        self.scale[k] = p.scale;
     }
 
     /// Lane k's pair: whether it counts ([`crate::estimate::eq2::crossing`]'s test for
@@ -98,7 +102,10 @@ impl<const N: usize> Pairs<N> {
         let at = |v: &[[f32; N]; 3]| [v[0][k], v[1][k], v[2][k]];
         let c = closest_xyz(at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
         let (span, ends) = ((self.t[0][k], self.t[1][k]), (self.s[0][k], self.s[1][k]));
-        ((c.sin2 >= 1e-10) & counts(&c, span, ends, r), c)
+        (
+            (c.sin2 >= 1e-10) & counts(&c, span, ends, r * self.scale[k]),
+            c,
+        )
     }
 }
 
@@ -157,10 +164,11 @@ impl<const N: usize> Lanes<N> {
     }
 }
 
-/// One pair the scalar way: eq2's [`crossing`] and [`counts`] themselves.
+/// One pair the scalar way: eq2's [`crossing`] and [`counts`] themselves, at r times the
+/// piece's scale.
 fn scalar(o: Vec3, w: Vec3, span: (f32, f32), p: &BeamPiece, r: f32) -> Option<Crossing> {
     let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
-    counts(&c, span, (p.s0, p.s1), r).then_some(c)
+    counts(&c, span, (p.s0, p.s1), r * p.scale).then_some(c)
 }
 
 /// The lanes that a step of `n` lanes keeps when `left` pairs are left.
@@ -195,6 +203,7 @@ fn wide_steps(isa: Isa, len: usize, mut step: impl FnMut(usize, usize)) -> usize
 pub struct Fixed<'a> {
     o: Vec3,
     piece: &'a BeamPiece,
+    /// The pass's beam radius: a pair counts within it times its piece's scale.
     r: f32,
 }
 

@@ -76,15 +76,15 @@ pub fn splat(
                     continue;
                 };
                 let piece = BeamPiece::whole(&beams[bi as usize]);
-                let radius = radius * piece.scale;
                 let fixed = Fixed::new(origin, &piece, radius);
+                let own = radius * piece.scale;
                 for y in row0..row0 + rows {
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {
                         continue;
                     };
                     let pixels = y * w + x0..y * w + x1 + 1;
                     fixed.for_each_counted(isa, &rays, pixels, |i, c| {
-                        let l = contribution(origin, &primaries[i], &piece, c, radius, media);
+                        let l = contribution(origin, &primaries[i], &piece, c, own, media);
                         img[i - row0 * w].add(l);
                         evals += 1;
                     });

@@ -221,8 +221,8 @@ impl LightTracer<'_> {
     }
 
     /// Stores the ray's stretches in media up to `t_end` with kernels `scale` times the
-    /// pass's radius, each reaching up to its radius past the medium boundaries it crosses (never before the ray's
-    /// origin nor past `t_end`). The kernel of eq. 2 reaches a beam's points within the
+    /// pass's radius, each reaching up to its radius past the medium boundaries it crosses
+    /// (never before the ray's origin nor past `t_end`). The kernel of eq. 2 reaches a beam's points within the
     /// radius of a camera point, so a camera point just inside a face would otherwise
     /// average the fluence with the empty outside and lose up to half of it (a bias of order
     /// r at every face a view ray crosses). Outside the media the path's fluence is the same
