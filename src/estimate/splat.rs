@@ -236,8 +236,10 @@ impl Line {
             let local = self.half_at(ua).max(self.half_at(ub));
             (xa.min(xb), xa.max(xb), local)
         };
-        let x0 = (xa - local).floor().max(0.0);
-        let x1 = (xb + local).floor().min(w as f32 - 1.0);
-        (x0 <= x1).then_some((x0 as usize, x1 as usize))
+        // Truncation is floor on what is not negative (and `floor` a libm call in the
+        // portable build); a right end below 0 leaves nothing.
+        let x0 = (xa - local).max(0.0) as usize;
+        let x1 = (xb + local).min(w as f32 - 1.0);
+        (x1 >= 0.0 && x0 <= x1 as usize).then_some((x0, x1 as usize))
     }
 }
