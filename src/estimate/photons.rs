@@ -1,8 +1,8 @@
 //! Surface photon maps of one pass: a hashed uniform grid with cells twice as wide as the
-//! lookup radius, so a lookup's ball touches at most 2 cells along each axis: 8 hashed
-//! reads instead of the 27 of cells as wide as the radius, which were most of a lookup's
-//! time with the few photons of a pass (cloud-hg: about 1,000). Photons are counting-sorted by cell, which
-//! keeps the order (and the float sums) independent of the thread count. Sharp photons
+//! lookup radius, so a lookup's ball touches 2 cells along each axis (3 at most): 8
+//! hashed reads where cells as wide as the radius took 27, most of them empty with the
+//! few photons of a pass (cloud-hg: about 1,000). Photons are counting-sorted by cell,
+//! which keeps the order (and the float sums) independent of the thread count. Sharp photons
 //! (direct light and caustics) and smooth ones (after a diffuse or medium scattering)
 //! go to two maps with their own radii: smooth light tolerates a wider kernel, which
 //! lowers its noise, while a caustic's edges need the narrow one.
@@ -134,11 +134,13 @@ fn cell_of(p: Vec3, cell: f32) -> IVec3 {
 }
 
 /// The cells the ball of radius `r` around `x` can reach, as the lowest and highest cell
-/// along each axis: 2 per axis (cells are 2 r wide), 3 where the ball's box, widened by
-/// a part in 10^4 against rounding, touches a third.
+/// along each axis: 2 per axis (cells are 2 r wide), 3 where the ball's box, widened
+/// against rounding by a part in 10^4 of r and a few ulps of x, touches a third (never
+/// more: a lookup reads at most 27 cells).
 fn ball_cells(x: Vec3, r: f32, cell: f32) -> (IVec3, IVec3) {
-    let reach = Vec3::splat(r * 1.0001);
-    (cell_of(x - reach, cell), cell_of(x + reach, cell))
+    let reach = Vec3::splat(r * 1.0001 + x.abs().max_element() * 4.0 * f32::EPSILON);
+    let lo = cell_of(x - reach, cell);
+    (lo, cell_of(x + reach, cell).min(lo + 2))
 }
 
 #[cfg(test)]
