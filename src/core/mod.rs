@@ -19,7 +19,8 @@ pub type Rgb = glam::Vec3;
 #[inline]
 pub fn floor_ivec3(p: glam::Vec3) -> glam::IVec3 {
     use glam::{IVec3, Vec3};
-    let p = p.clamp(Vec3::splat(-1073741824.0), Vec3::splat(1073741824.0));
+    let limit = Vec3::splat((1u32 << 30) as f32);
+    let p = p.clamp(-limit, limit);
     let t = p.as_ivec3();
     t - IVec3::select(t.as_vec3().cmpgt(p), IVec3::ONE, IVec3::ZERO)
 }
