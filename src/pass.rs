@@ -11,7 +11,7 @@ use crate::core::Rgb;
 use crate::error::{Error, Result};
 use crate::estimate::{beams::BeamMap, cpu, photons::Photons, Timings, TracedPass, View};
 use crate::geometry::Geometry;
-use crate::media::Media;
+use crate::media::{Media, Support};
 use crate::plan::{PassPlan, Plan};
 use crate::scene::{Light, Scene};
 use crate::settings::TrMode;
@@ -30,6 +30,8 @@ pub struct Tracer {
     pub settings: RenderSettings,
     geometry: Geometry,
     media: Media,
+    /// Where the media scatter light, grown by the widest beam kernel of the render.
+    support: Support,
     lights: LightSampler,
     camera: Pinhole,
     /// R1 of the beams and of the photons (m).
@@ -100,11 +102,14 @@ impl Tracer {
         settings
             .validate()
             .map_err(|e| Error::Other(format!("render settings: {e}")))?;
+        // Eq. 3 only shrinks the radius: the first pass's widest kernel bounds them all.
+        let support = media.support(beam_r1 * smooth_beam_scale(settings.method));
         Ok(Tracer {
             has_specular,
             settings,
             geometry,
             media,
+            support,
             lights,
             camera,
             beam_r1,
@@ -186,12 +191,10 @@ impl Tracer {
             lights: &self.lights,
             geometry: &self.geometry,
             media: &self.media,
+            support: &self.support,
             free_path,
             beam_radius: p.beam_radius,
-            smooth_beam_scale: match s.method {
-                Method::Hybrid => SMOOTH_BEAM_SCALE,
-                Method::Ppb => 1.0,
-            },
+            smooth_beam_scale: smooth_beam_scale(s.method),
             skip_direct: s.method == Method::Hybrid,
         };
         let light = lt.trace_pass(p.seed, p.index, p.light_paths);
@@ -269,5 +272,14 @@ fn union(a: Option<[Vec3; 2]>, b: Option<[Vec3; 2]>) -> Option<[Vec3; 2]> {
         (Some(a), Some(b)) => Some([a[0].min(b[0]), a[1].max(b[1])]),
         (a, None) => a,
         (None, b) => b,
+    }
+}
+
+/// The smooth beams' kernel radius over the pass's (the hybrid method's wider multiple
+/// scattering; the paper's method has one radius).
+fn smooth_beam_scale(method: Method) -> f32 {
+    match method {
+        Method::Hybrid => SMOOTH_BEAM_SCALE,
+        Method::Ppb => 1.0,
     }
 }

@@ -56,6 +56,7 @@ fn light_through_glass_reaches_the_floor_only_through_photons() {
             lights: &lights,
             geometry: &geometry,
             media: &media,
+            support: &media.support(1.0),
             free_path,
             beam_radius: 0.01,
             smooth_beam_scale: 1.0,

@@ -191,6 +191,7 @@ fn estimate(
         lights: &lights,
         geometry: &geometry,
         media: &media,
+        support: &media.support(1.0),
         free_path: fp,
         beam_radius: radius,
         smooth_beam_scale: 1.0,

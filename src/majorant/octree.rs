@@ -475,7 +475,7 @@ struct Scratch {
 }
 
 /// Index-space bounding box of a world box.
-fn index_box(g: &impl Field, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
+pub(super) fn index_box(g: &impl Field, cmin: Vec3, cmax: Vec3) -> (DVec3, DVec3) {
     let mut ilo = DVec3::splat(f64::MAX);
     let mut ihi = DVec3::splat(f64::MIN);
     for k in 0..8 {
@@ -604,7 +604,7 @@ pub fn root_span(t: &Octree, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::media::procedural::{build, NoiseParams, Preset};
     use crate::media::GridMedium;

@@ -25,6 +25,7 @@ use glam::Vec3;
 use smallvec::SmallVec;
 
 use crate::core::{ray_box, Ray, Rgb};
+use crate::majorant::Occupancy;
 
 /// A ray interval of constant total extinction.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -67,6 +68,27 @@ impl Chords {
     pub fn optical_depth(&self, t: f32) -> f32 {
         self.0.iter().filter_map(|c| c.depth(t)).sum()
     }
+}
+
+/// What [`Media::support`] builds once per render for [`Media::supported_spans`].
+#[derive(Clone, Debug, Default)]
+pub struct Support {
+    /// The largest kernel radius (m) the grids' distances resolve.
+    pub reach: f32,
+    grids: Vec<Occupancy>,
+}
+
+/// `spans` sorted by start, overlapping ones merged.
+fn merge<A: smallvec::Array<Item = (f32, f32)>>(mut spans: SmallVec<A>) -> SmallVec<A> {
+    spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out: SmallVec<A> = SmallVec::new();
+    for (a, b) in spans {
+        match out.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
 }
 
 /// All media of a scene, queried as one extinction field: homogeneous boxes (sampled and
@@ -172,7 +194,7 @@ impl Media {
     /// [`Self::spans`] with each box's span widened by `pad` (m) on both sides, within
     /// [0, tmax], before spans that then overlap are merged.
     pub fn padded_spans(&self, ray: &Ray, tmax: f32, pad: f32) -> SmallVec<[(f32, f32); 4]> {
-        let mut spans: SmallVec<[(f32, f32); 4]> = self
+        let spans: SmallVec<[(f32, f32); 4]> = self
             .media
             .iter()
             .map(|m| m.bounds)
@@ -180,15 +202,48 @@ impl Media {
             .filter_map(|b| ray_box(ray, &b, 0.0, tmax))
             .map(|(a, b)| ((a - pad).max(0.0), (b + pad).min(tmax)))
             .collect();
-        spans.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut out: SmallVec<[(f32, f32); 4]> = SmallVec::new();
-        for (a, b) in spans {
-            match out.last_mut() {
-                Some(last) if a <= last.1 => last.1 = last.1.max(b),
-                _ => out.push((a, b)),
+        merge(spans)
+    }
+
+    /// Where the media can scatter light: each grid's cells with their distances to
+    /// positive density, resolved up to `reach` (m; see [`Occupancy`]).
+    pub fn support(&self, reach: f32) -> Support {
+        let grids = self
+            .grids
+            .iter()
+            .map(|g| Occupancy::new(g.field(), reach))
+            .collect();
+        Support { reach, grids }
+    }
+
+    /// The merged stretches of the ray within [0, tmax] that come within `pad` of a point
+    /// where some medium scatters light: the homogeneous boxes with extinction grown by
+    /// `pad`, and each grid's cells nearer than `pad` to its density (for a `pad` past
+    /// `support.reach`, each grid's whole box grown by `pad`). A beam
+    /// estimated with a kernel of radius `pad` is worth storing only there: elsewhere each
+    /// camera point its kernel reaches has no in-scattering.
+    pub fn supported_spans(
+        &self,
+        support: &Support,
+        ray: &Ray,
+        tmax: f32,
+        pad: f32,
+    ) -> SmallVec<[(f32, f32); 8]> {
+        let mut spans: SmallVec<[(f32, f32); 8]> = SmallVec::new();
+        let mut push = |(a, b): (f32, f32)| spans.push(((a - pad).max(0.0), (b + pad).min(tmax)));
+        for m in self.media.iter().filter(|m| m.sigma_t > 0.0) {
+            ray_box(ray, &m.bounds, 0.0, tmax).map(&mut push);
+        }
+        if pad <= support.reach && support.grids.len() == self.grids.len() {
+            for occ in &support.grids {
+                occ.runs(ray, 0.0, tmax, pad, |a, b| spans.push((a, b)));
+            }
+        } else {
+            for g in &self.grids {
+                g.interval(ray, tmax).map(&mut push);
             }
         }
-        out
+        merge(spans)
     }
 
     /// Integral of the homogeneous media's sigma_t along the ray over [0, t].

@@ -10,7 +10,7 @@ use crate::bsdf;
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::geometry::{Geometry, EPS};
-use crate::media::Media;
+use crate::media::{Media, Support};
 use crate::sampling::{Discrete, Rng, Stream};
 use crate::scene::{Light, Material};
 use crate::settings::SMOOTH_BEAM_AFTER;
@@ -89,6 +89,8 @@ pub struct LightTracer<'a> {
     pub lights: &'a LightSampler,
     pub geometry: &'a Geometry,
     pub media: &'a Media,
+    /// Where the media scatter light, for the beams' stretches ([`Media::supported_spans`]).
+    pub support: &'a Support,
     pub free_path: FreePath<'a>,
     /// The pass's beam radius (m): how far a beam reaches past each medium boundary it
     /// crosses (see [`LightTracer::store_beams`]).
@@ -232,7 +234,7 @@ impl LightTracer<'_> {
     /// (`tests/environment.rs` measures it).
     fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, scale: f32, out: &mut LightPass) {
         let reach = self.beam_radius * scale;
-        for (a, b) in self.media.padded_spans(ray, t_end, reach) {
+        for (a, b) in self.media.supported_spans(self.support, ray, t_end, reach) {
             out.beams
                 .push(Beam::new(ray.at(a), ray.d, b - a, power).scaled(scale));
             out.counters.beams += 1;
@@ -281,6 +283,7 @@ mod tests {
             lights: &lights,
             geometry: &geometry,
             media: &media,
+            support: &media.support(1.0),
             free_path: FreePath {
                 media: &media,
                 mode: Mode::Woodcock,
