@@ -16,7 +16,7 @@ use super::octree::index_box;
 use crate::core::{floor_ivec3, slab, Ray};
 
 /// Most cells along an axis (a larger grid gets cells several voxels wide).
-const MAX_RES: u32 = 128;
+const MAX_RES: u32 = 64;
 /// Distance codes: code c means at least c * max_reach / FAR, FAR at least max_reach.
 const FAR: u8 = 255;
 
@@ -93,13 +93,6 @@ impl Occupancy {
         }
     }
 
-    /// Whether every point of cell `i` is at least `pad` from positive density.
-    #[inline]
-    fn far(&self, i: usize, pad: f32) -> bool {
-        let code = self.dist[i];
-        code as f32 * self.quantum >= pad
-    }
-
     /// The cell holding `p`, clamped into the grid.
     fn cell_of(&self, p: Vec3) -> IVec3 {
         floor_ivec3((p - self.lo) / self.cell).clamp(IVec3::ZERO, self.res.as_ivec3() - 1)
@@ -119,50 +112,73 @@ impl Occupancy {
         let Some((ta, tb)) = slab(ray.o, inv, self.lo, self.hi, t0, t1) else {
             return;
         };
-        let mut c = self.cell_of(ray.at(ta));
-        let res = self.res.as_ivec3();
-        // Where the ray leaves cell c along axis a: never, along an axis it does not move.
-        let exit = |c: IVec3, a: usize| -> f32 {
-            if ray.d[a] == 0.0 {
+        let far = self.far_code(pad);
+        let c0 = self.cell_of(ray.at(ta));
+        let (o, d, lo, cell) = (ray.o.to_array(), ray.d.to_array(), self.lo, self.cell);
+        let res = [self.res.x as i32, self.res.y as i32, self.res.z as i32];
+        let stride = [1, res[0] as isize, (res[0] * res[1]) as isize];
+        let mut c = c0.to_array();
+        let up = d.map(|v| (v > 0.0) as i32);
+        let step = d.map(|v| if v > 0.0 { 1 } else { -1 });
+        // Where the ray leaves the cell along axis a, from the face's plane (no rounding
+        // builds up along the walk): never, along an axis it does not move.
+        let exit = |c: &[i32; 3], a: usize| -> f32 {
+            if d[a] == 0.0 {
                 return f32::INFINITY;
             }
-            let face = c[a] + (ray.d[a] > 0.0) as i32;
-            ((self.lo[a] + face as f32 * self.cell[a] - ray.o[a]) * inv[a]).max(ta)
+            ((lo[a] + (c[a] + up[a]) as f32 * cell[a] - o[a]) * inv[a]).max(ta)
         };
-        let mut out = Vec3::new(exit(c, 0), exit(c, 1), exit(c, 2));
+        let mut out = [exit(&c, 0), exit(&c, 1), exit(&c, 2)];
+        let mut i = self.index(c0) as isize;
         let mut t = ta;
         let mut run: Option<f32> = None;
         loop {
-            let marked = !self.far(self.index(c), pad);
-            match (marked, run) {
-                (true, None) => run = Some(t),
-                (false, Some(a)) => {
-                    f(a, t);
-                    run = None;
+            let near = u16::from(self.dist[i as usize]) < far;
+            if near != run.is_some() {
+                match run.take() {
+                    Some(a) => f(a, t),
+                    None => run = Some(t),
                 }
-                _ => {}
             }
-            let leave = out.min_element();
-            if leave >= tb {
-                break;
-            }
-            let axis = if out.x == leave {
+            let a = if out[0] <= out[1] && out[0] <= out[2] {
                 0
-            } else if out.y == leave {
+            } else if out[1] <= out[2] {
                 1
             } else {
                 2
             };
-            c[axis] += if ray.d[axis] > 0.0 { 1 } else { -1 };
-            if c[axis] < 0 || c[axis] >= res[axis] {
+            let leave = out[a];
+            if leave >= tb {
                 break;
             }
-            out[axis] = exit(c, axis);
+            c[a] += step[a];
+            if c[a] < 0 || c[a] >= res[a] {
+                break;
+            }
+            i += stride[a] * step[a] as isize;
+            out[a] = exit(&c, a);
             t = leave;
         }
         if let Some(a) = run {
             f(a, tb);
         }
+    }
+
+    /// The smallest distance code whose cells are at least `pad` from positive density
+    /// (`code * quantum >= pad`); past the codes, none is.
+    fn far_code(&self, pad: f32) -> u16 {
+        let (q, none) = (self.quantum, FAR as u16 + 1);
+        if q <= 0.0 {
+            return if pad <= 0.0 { 0 } else { none };
+        }
+        let mut k = (pad / q).ceil().clamp(0.0, none as f32) as u16;
+        while k > 0 && (k - 1) as f32 * q >= pad {
+            k -= 1;
+        }
+        while k < none && (k as f32) * q < pad {
+            k += 1;
+        }
+        k
     }
 }
 
