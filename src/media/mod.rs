@@ -73,8 +73,6 @@ impl Chords {
 /// What [`Media::support`] builds once per render for [`Media::supported_spans`].
 #[derive(Clone, Debug, Default)]
 pub struct Support {
-    /// The largest kernel radius (m) the grids' distances resolve.
-    pub reach: f32,
     grids: Vec<Occupancy>,
 }
 
@@ -213,15 +211,15 @@ impl Media {
             .iter()
             .map(|g| Occupancy::new(g.field(), reach))
             .collect();
-        Support { reach, grids }
+        Support { grids }
     }
 
     /// The merged stretches of the ray within [0, tmax] that come within `pad` of a point
     /// where some medium scatters light: the homogeneous boxes with extinction grown by
     /// `pad`, and each grid's cells nearer than `pad` to its density (for a `pad` past
-    /// `support.reach`, each grid's whole box grown by `pad`). A beam
-    /// estimated with a kernel of radius `pad` is worth storing only there: elsewhere each
-    /// camera point its kernel reaches has no in-scattering.
+    /// what its cells resolve, the grid's whole box grown by `pad`). A beam estimated with
+    /// a kernel of radius `pad` is worth storing only there: elsewhere each camera point
+    /// its kernel reaches has no in-scattering.
     pub fn supported_spans(
         &self,
         support: &Support,
@@ -229,18 +227,16 @@ impl Media {
         tmax: f32,
         pad: f32,
     ) -> SmallVec<[(f32, f32); 8]> {
+        let padded = |(a, b): (f32, f32)| ((a - pad).max(0.0), (b + pad).min(tmax));
         let mut spans: SmallVec<[(f32, f32); 8]> = SmallVec::new();
-        let mut push = |(a, b): (f32, f32)| spans.push(((a - pad).max(0.0), (b + pad).min(tmax)));
         for m in self.media.iter().filter(|m| m.sigma_t > 0.0) {
-            ray_box(ray, &m.bounds, 0.0, tmax).map(&mut push);
+            spans.extend(ray_box(ray, &m.bounds, 0.0, tmax).map(padded));
         }
-        if pad <= support.reach && support.grids.len() == self.grids.len() {
-            for occ in &support.grids {
-                occ.runs(ray, 0.0, tmax, pad, |a, b| spans.push((a, b)));
-            }
-        } else {
-            for g in &self.grids {
-                g.interval(ray, tmax).map(&mut push);
+        let ours = support.grids.len() == self.grids.len();
+        for (i, g) in self.grids.iter().enumerate() {
+            match support.grids.get(i).filter(|o| ours && pad <= o.max_reach) {
+                Some(occ) => occ.runs(ray, 0.0, tmax, pad, |a, b| spans.push((a, b))),
+                None => spans.extend(g.interval(ray, tmax).map(padded)),
             }
         }
         merge(spans)
