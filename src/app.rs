@@ -60,8 +60,9 @@ pub struct Overrides {
     /// PNG (and window) exposure in stops (overrides [render].exposure).
     #[arg(long)]
     pub exposure: Option<f32>,
-    /// Grid free paths (random, stratified) or ratio trackings averaged (ratio) per camera
-    /// segment per pass (overrides [render].tr_samples; 1..=16, default 4).
+    /// Grid free paths (random, stratified) per camera segment per pass, or (ratio) the
+    /// ratio tracking's rate in multiples of the majorant, as many lookups as that many
+    /// trackings (overrides [render].tr_samples; 1..=16, default 4).
     #[arg(long, value_name = "M")]
     pub tr_samples: Option<usize>,
     /// Free-path sampler for light paths and camera transmittance (overrides

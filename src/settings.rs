@@ -27,7 +27,8 @@ pub struct RenderSettings {
     pub seed: u64,
     /// PNG preview exposure in stops.
     pub exposure: f32,
-    /// Grid free paths per camera segment per pass (M of the deep-shadow estimate).
+    /// Grid free paths per camera segment per pass (M of the deep-shadow and stratified
+    /// estimates), or the ratio tracking's rate in multiples of the majorant.
     pub tr_samples: usize,
     pub free_path: crate::majorant::Mode,
     /// Camera-segment transmittance estimator through grids.

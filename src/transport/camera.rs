@@ -597,7 +597,7 @@ impl CameraTracer<'_> {
     }
 
     /// The grids' octree walks along a camera segment in media, made once for the two
-    /// users that read the same leaves: ratio tracking's M trackings and next-event
+    /// users that read the same leaves: ratio tracking (at M times the majorant) and next-event
     /// estimation's distances by the majorant (lights with no position). Timed as
     /// transmittance, which they serve first.
     fn walks(
