@@ -5,8 +5,7 @@ use glam::{Vec3, Vec3A};
 use obvhs::{bvh2::builder::build_bvh2_from_tris, bvh2::Bvh2, ray::RayHit, triangle::Triangle};
 use std::time::Duration;
 
-use crate::core::ray::ray_box;
-use crate::core::{Ray, Rgb};
+use crate::core::{ray_box, Ray, Rgb};
 use crate::error::{Error, Result};
 use crate::scene::{Light, Material, Scene};
 
@@ -47,17 +46,27 @@ pub struct Geometry {
 /// Offset used to leave a surface without re-hitting it (m).
 pub const EPS: f32 = 1e-4;
 
-/// The triangles' bounding box grown on every side by a margin relative to its size (and at
-/// least 1e-4 m), so that flat boxes (a floor) have volume and rounding in the slab test
-/// never rejects a ray that meets a triangle.
-fn grown_bounds(tris: &[Triangle]) -> [Vec3; 2] {
-    let mut lo = Vec3::INFINITY;
-    let mut hi = Vec3::NEG_INFINITY;
-    for t in tris {
+/// The smallest box holding all of `boxes` (lo, hi), if there are any.
+fn enclosing(boxes: impl Iterator<Item = (Vec3, Vec3)>) -> Option<[Vec3; 2]> {
+    boxes.fold(None, |b, (lo, hi)| {
+        Some(match b {
+            None => [lo, hi],
+            Some([a, c]) => [a.min(lo), c.max(hi)],
+        })
+    })
+}
+
+fn triangle_boxes(tris: &[Triangle]) -> impl Iterator<Item = (Vec3, Vec3)> + '_ {
+    tris.iter().map(|t| {
         let a = t.aabb();
-        lo = lo.min(a.min.into());
-        hi = hi.max(a.max.into());
-    }
+        (a.min.into(), a.max.into())
+    })
+}
+
+/// `[lo, hi]` grown on every side by a margin relative to its size (and at least 1e-4 m),
+/// so that a flat box (a floor) has volume and rounding in the slab test never rejects a
+/// ray that meets a triangle inside it.
+fn grown([lo, hi]: [Vec3; 2]) -> [Vec3; 2] {
     let size = (hi - lo)
         .max_element()
         .max(lo.abs().max(hi.abs()).max_element());
@@ -133,7 +142,8 @@ impl Geometry {
                 _ => None,
             })
             .collect();
-        let reach = grown_bounds(&tris);
+        // Without triangles there is no BVH, and intersect never reads it.
+        let reach = enclosing(triangle_boxes(&tris)).map_or([Vec3::ZERO; 2], grown);
         Ok(Geometry {
             tris,
             info,
@@ -149,21 +159,11 @@ impl Geometry {
 
     /// Bounds of all surfaces, if any.
     pub fn bounds(&self) -> Option<[Vec3; 2]> {
-        let mut b: Option<[Vec3; 2]> = None;
-        let mut add = |lo: Vec3, hi: Vec3| {
-            b = Some(match b {
-                None => [lo, hi],
-                Some([a, c]) => [a.min(lo), c.max(hi)],
-            })
-        };
-        for t in &self.tris {
-            let a = t.aabb();
-            add(a.min.into(), a.max.into());
-        }
-        for s in &self.spheres {
-            add(s.center - s.radius, s.center + s.radius);
-        }
-        b
+        let spheres = self
+            .spheres
+            .iter()
+            .map(|s| (s.center - s.radius, s.center + s.radius));
+        enclosing(triangle_boxes(&self.tris).chain(spheres))
     }
 
     /// Closest surface hit in (EPS-free) range (0, tmax); sphere lights are not surfaces.
