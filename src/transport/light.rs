@@ -3,7 +3,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::emitters::{Emission, SceneBox, Window};
+use super::emitters::Emission;
 use super::freepath::FreePath;
 use super::{timed, Beam, Counters, Photon, MAX_DEPTH};
 use crate::bsdf;
@@ -20,38 +20,32 @@ pub struct LightSampler {
     lights: Vec<Light>,
     /// By power; None when no light emits.
     by_power: Option<Discrete>,
-    /// Everything a light at infinity must light.
-    scene: SceneBox,
-    /// Each directional light's window, made once (the others' None).
-    windows: Vec<Option<Window>>,
+    /// Sphere bounding everything a directional light must cover.
+    scene_center: Vec3,
+    scene_radius: f32,
 }
 
 impl LightSampler {
     pub fn new(lights: &[Light], scene_bounds: [Vec3; 2]) -> Self {
-        let scene = SceneBox {
-            lo: scene_bounds[0],
-            hi: scene_bounds[1],
-        };
-        let by_power = Discrete::new(lights.iter().map(|l| l.power(&scene).element_sum() as f64));
-        let windows = lights
-            .iter()
-            .map(|l| match *l {
-                Light::Directional { direction, .. } => Some(scene.window(direction)),
-                _ => None,
-            })
-            .collect();
+        let scene_center = 0.5 * (scene_bounds[0] + scene_bounds[1]);
+        let scene_radius = 0.5 * (scene_bounds[1] - scene_bounds[0]).length() * 1.01 + 1e-3;
+        let by_power = Discrete::new(
+            lights
+                .iter()
+                .map(|l| l.power(scene_radius).element_sum() as f64),
+        );
         LightSampler {
             lights: lights.to_vec(),
             by_power,
-            scene,
-            windows,
+            scene_center,
+            scene_radius,
         }
     }
 
     pub fn total_power(&self) -> Rgb {
         self.lights
             .iter()
-            .map(|l| l.power(&self.scene))
+            .map(|l| l.power(self.scene_radius))
             .fold(Vec3::ZERO, |a, b| a + b)
     }
 
@@ -73,21 +67,16 @@ impl LightSampler {
 
     /// A light chosen by power from `u` in [0, 1), with the probability of choosing it.
     pub fn pick(&self, u: f32) -> Option<(&Light, f32)> {
-        self.pick_index(u).map(|(i, prob)| (&self.lights[i], prob))
-    }
-
-    fn pick_index(&self, u: f32) -> Option<(usize, f32)> {
         let (idx, prob, _) = self.by_power.as_ref()?.sample(u);
-        Some((idx, prob))
+        Some((&self.lights[idx], prob))
     }
 
     /// Picks a light by power and samples a photon from it, carrying power / pdf.
     pub fn emit(&self, rng: &mut Rng) -> Option<Emission> {
-        let (i, prob) = self.pick_index(rng.f32())?;
+        let (light, prob) = self.pick(rng.f32())?;
         let u1 = rng.vec2();
         let u2 = rng.vec2();
-        let window = self.windows[i].as_ref();
-        let e = self.lights[i].emit(&self.scene, window, u1, u2);
+        let e = light.emit(self.scene_center, self.scene_radius, u1, u2);
         Some(Emission {
             power: e.power / prob,
             ..e
