@@ -25,7 +25,7 @@ pub struct Rays {
 }
 
 /// The widest step's lane count.
-pub(crate) const PAD: usize = 16;
+const PAD: usize = 16;
 
 impl Rays {
     /// The arrays filled in parallel (a serial copy was a few per cent of a pass).

@@ -45,18 +45,19 @@ pub fn splat(
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let bands = h.div_ceil(BAND);
     let reach = reach_per_radius(cam);
-    let lines: Vec<Option<Line>> = beams
-        .par_iter()
-        .map(|b| Line::project(cam, b, radius * b.scale, reach))
-        .collect();
     let origin = cam.origin();
-    let nearest: Vec<f32> = beams
+    // Each beam on the film, with the nearest camera distance at which it can count.
+    let lines: Vec<Option<(Line, f32)>> = beams
         .par_iter()
-        .map(|b| nearest_crossing(origin, &BeamPiece::whole(b), radius * b.scale))
+        .map(|b| {
+            let r = radius * b.scale;
+            let line = Line::project(cam, b, r, reach)?;
+            Some((line, nearest_crossing(origin, &BeamPiece::whole(b), r)))
+        })
         .collect();
     let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
     for (i, l) in lines.iter().enumerate() {
-        if let Some(l) = l {
+        if let Some((l, _)) = l {
             let y0 = (l.ymin.max(0.0) as usize).min(h - 1);
             let y1 = (l.ymax.max(0.0) as usize).min(h - 1);
             for list in &mut per_band[y0 / BAND..=y1 / BAND] {
@@ -82,7 +83,7 @@ pub fn splat(
             let rows = img.len() / w;
             let mut evals = 0u64;
             for &bi in list {
-                let Some(line) = &lines[bi as usize] else {
+                let Some((line, nearest)) = &lines[bi as usize] else {
                     continue;
                 };
                 let piece = BeamPiece::whole(&beams[bi as usize]);
@@ -92,7 +93,7 @@ pub fn splat(
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {
                         continue;
                     };
-                    if seen.hidden(y, x0, x1, nearest[bi as usize]) {
+                    if seen.hidden(y, x0, x1, *nearest) {
                         continue;
                     }
                     let pixels = y * w + x0..y * w + x1 + 1;
@@ -306,7 +307,6 @@ impl Line {
 mod tests {
     use super::*;
     use crate::estimate::eq2::{counts, crossing};
-    use crate::estimate::lanes::PAD;
     use crate::sampling::{orthonormal_basis, uniform_sphere, Rng};
 
     /// No pair that counts crosses nearer than [`nearest_crossing`]. 400,000 rays pass
@@ -366,14 +366,7 @@ mod tests {
     #[test]
     fn a_span_is_hidden_only_behind_every_run() {
         let (w, h) = (40, 2);
-        let mut t1: Vec<f32> = (0..w * h).map(|i| i as f32).collect();
-        t1.extend([-1.0; PAD]);
-        let rays = Rays {
-            x: vec![0.0; t1.len()],
-            y: vec![0.0; t1.len()],
-            z: vec![0.0; t1.len()],
-            t1,
-        };
+        let rays = Rays::new((0..w * h).into_par_iter().map(|i| (Vec3::X, i as f32)));
         let seen = Seen::new(&rays, w, h);
         // Row 0, pixels 0..=15 see up to 15; 16..=31 up to 31.
         assert!(seen.hidden(0, 0, 15, 15.0));
