@@ -111,6 +111,11 @@ pub struct LightPass {
     pub counters: Counters,
 }
 
+/// A hop between two collisions shorter than this many reaches is stored whole (see
+/// [`LightTracer::store_beams`]): below 2, with a margin for the rounding of the media's
+/// distance bounds.
+const SHORT_HOP: f32 = 1.9;
+
 /// Paths per rayon task: small tasks balance well, and each keeps its own output.
 const CHUNK: usize = 512;
 
@@ -156,6 +161,8 @@ impl LightTracer<'_> {
         // How often the path has scattered diffusely or in a medium: its photons are smooth
         // from the first, its beams from SMOOTH_BEAM_AFTER on.
         let mut scatterings = 0u32;
+        // Whether the ray starts at a real collision in a medium (extinction there > 0).
+        let mut from_collision = false;
         for _ in 0..MAX_DEPTH {
             let hit = self.geometry.intersect(&ray, f32::INFINITY);
             let t_surf = hit.map_or(f32::INFINITY, |h| h.t);
@@ -177,7 +184,8 @@ impl LightTracer<'_> {
                 } else {
                     1.0
                 };
-                self.store_beams(&ray, t_end, power, scale, out);
+                let between = from_collision && collision.is_some();
+                self.store_beams(&ray, t_end, power, scale, between, out);
             }
             if let Some(t) = collision {
                 let p = ray.at(t);
@@ -193,6 +201,7 @@ impl LightTracer<'_> {
                 scatterings += 1;
                 let (u1, u2) = (rng.f32(), rng.f32());
                 ray = Ray::new(p, phase.sample(ray.d, u1, u2));
+                from_collision = true;
                 continue;
             }
             let Some(h) = hit else { return };
@@ -219,6 +228,7 @@ impl LightTracer<'_> {
             in_glass = enters_glass(&material, b.dir, h.ng);
             let off = if b.dir.dot(h.ng) > 0.0 { h.ng } else { -h.ng };
             ray = Ray::new(h.p + off * EPS, b.dir);
+            from_collision = false;
         }
     }
 
@@ -232,8 +242,27 @@ impl LightTracer<'_> {
     /// the extension removes that bias and adds nothing else. Beams that pass just outside
     /// a face without crossing it are not stored, so a bias of order r remains there
     /// (`tests/environment.rs` measures it).
-    fn store_beams(&self, ray: &Ray, t_end: f32, power: Rgb, scale: f32, out: &mut LightPass) {
+    ///
+    /// `between` says the ray runs from one real collision in a medium to another: both
+    /// ends have extinction, so a stretch no longer than twice the reach lies wholly within
+    /// the reach of one of them and is stored whole without asking the media (the answer
+    /// would be that one span: in a thick cloud most beams are such short hops).
+    fn store_beams(
+        &self,
+        ray: &Ray,
+        t_end: f32,
+        power: Rgb,
+        scale: f32,
+        between: bool,
+        out: &mut LightPass,
+    ) {
         let reach = self.beam_radius * scale;
+        if between && t_end < SHORT_HOP * reach {
+            out.beams
+                .push(Beam::new(ray.o, ray.d, t_end, power).scaled(scale));
+            out.counters.beams += 1;
+            return;
+        }
         for (a, b) in self.media.supported_spans(self.support, ray, t_end, reach) {
             out.beams
                 .push(Beam::new(ray.at(a), ray.d, b - a, power).scaled(scale));
@@ -312,5 +341,68 @@ mod tests {
         }
         // With albedo 0.9 a path scatters 9 times on average: most beams are smooth.
         assert!(smooth > 1000, "{smooth} smooth beams");
+    }
+
+    /// A hop between two real collisions shorter than [`SHORT_HOP`] reaches is what the
+    /// media would answer for it: one span, the whole hop, so storing it whole changes
+    /// no beam. Hops between free-path collisions in the noise smoke (axis-aligned and
+    /// rotated), partly inside a fog box, and in a second fog box 0.8 m off the smoke's
+    /// box, at reaches up to the support's. Longer hops (across the gap) do get cut, so
+    /// the property is not true of any hop.
+    #[test]
+    fn short_hops_between_collisions_are_one_span() {
+        use crate::majorant::octree::tests::noise_medium;
+        use crate::sampling::uniform_sphere;
+        for rotate in [false, true] {
+            let fog = MediumDesc {
+                bounds: [Vec3::new(-1.0, 0.0, -1.0), Vec3::new(0.0, 1.0, 0.0)],
+                sigma_t: 3.0,
+                albedo: Vec3::ONE,
+                phase: Phase::ISOTROPIC,
+            };
+            let far_fog = MediumDesc {
+                bounds: [Vec3::new(1.8, 0.0, -1.0), Vec3::new(2.8, 2.0, 1.0)],
+                ..fog
+            };
+            let media = Media::bake(vec![fog, far_fog], &[noise_medium(rotate)], 6);
+            let max_reach = 0.25;
+            let support = media.support(max_reach);
+            let free_path = FreePath {
+                media: &media,
+                mode: Mode::Adaptive,
+            };
+            let mut rng = Rng::new(21, u64::from(rotate));
+            let mut c = Counters::default();
+            let (mut short, mut cut) = (0u32, 0u32);
+            for _ in 0..40_000 {
+                let o = Vec3::new(
+                    rng.f32() * 3.8 - 1.0,
+                    rng.f32() * 2.0,
+                    rng.f32() * 2.0 - 1.0,
+                );
+                let d = uniform_sphere(rng.vec2());
+                let Some(t) = free_path.sample(&Ray::new(o, d), f32::INFINITY, &mut rng, &mut c)
+                else {
+                    continue;
+                };
+                let hop = Ray::new(o + d * t, uniform_sphere(rng.vec2()));
+                let Some(t_end) = free_path.sample(&hop, f32::INFINITY, &mut rng, &mut c) else {
+                    continue;
+                };
+                let reach = max_reach * (0.1 + 0.9 * rng.f32());
+                let spans = media.supported_spans(&support, &hop, t_end, reach);
+                let whole = spans.len() == 1 && spans[0] == (0.0, t_end);
+                if t_end < SHORT_HOP * reach {
+                    assert!(whole, "{hop:?} to {t_end}, reach {reach}: {spans:?}");
+                    short += 1;
+                } else if !whole {
+                    cut += 1;
+                }
+            }
+            assert!(
+                short > 5000 && cut > 100,
+                "rotate {rotate}: {short} short hops, {cut} cut"
+            );
+        }
     }
 }
