@@ -203,6 +203,9 @@ pub enum TrMode {
     Stratified,
     /// Ratio tracking on the octree's local majorants (the default).
     Ratio,
+    /// Unbiased ray marching (Kettunen et al. 2021): jittered marches by the majorant, one
+    /// the control of a power series cut by Russian roulette.
+    March,
 }
 
 /// Most light samples per camera segment (`--nee-samples`).

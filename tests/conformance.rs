@@ -18,7 +18,7 @@ use ppb::output::{read_exr, Image};
 use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::session::Session;
-use ppb::settings::{Bandwidth, Method, Radius};
+use ppb::settings::{Bandwidth, Method, Radius, TrMode};
 
 const BLOCK: usize = 4;
 
@@ -58,6 +58,7 @@ struct Case<'a> {
     method: Method,
     device: Device,
     bandwidth: Bandwidth,
+    tr: TrMode,
 }
 
 impl Case<'_> {
@@ -74,6 +75,7 @@ impl Case<'_> {
         };
         let mut r = quarter_renderer(self.scene, seed, self.paths, Mode::Adaptive, self.method);
         r.settings.bandwidth = self.bandwidth;
+        r.settings.tr_mode = self.tr;
         let mut session = Session::open(r, gpu, PrimaryPath::Auto, camera_tr).expect("estimator");
         Some(session.render(self.passes).expect("render"))
     }
@@ -168,6 +170,7 @@ fn check_methods(
             method,
             device: Device::Cpu,
             bandwidth: Bandwidth::Fixed,
+            tr: TrMode::Ratio,
         };
         let o = check_on(&case, reference, mask).expect("CPU render");
         o.assert_within(&format!("{scene} ({method:?})"), ref_noise, mean_tol);
@@ -331,10 +334,32 @@ fn adaptive_bandwidth_matches_references() {
             method: Method::Hybrid,
             device: Device::Cpu,
             bandwidth: Bandwidth::Adaptive,
+            tr: TrMode::Ratio,
         };
         let reference = format!("tests/data/conformance/{scene}/reference.exr");
         let o = check_on(&case, &reference, None).expect("CPU render");
         o.assert_within(&format!("{scene} (adaptive)"), ref_noise, 0.01);
+    }
+}
+
+/// The camera transmittance by unbiased ray marching (`--transmittance march`) converges
+/// to the references within the same bounds.
+#[test]
+fn ray_marching_transmittance_matches_references() {
+    for scene in ["smoke-grid", "cloud-hg"] {
+        let case = Case {
+            scene: &format!("scenes/conformance/{scene}/scene.toml"),
+            passes: 96,
+            paths: 20_000,
+            method: Method::Hybrid,
+            device: Device::Cpu,
+            bandwidth: Bandwidth::Fixed,
+            tr: TrMode::March,
+        };
+        let reference = format!("tests/data/conformance/{scene}/reference.exr");
+        let o = check_on(&case, &reference, None).expect("CPU render");
+        // Reference block noise 0.1 % (reference.json).
+        o.assert_within(&format!("{scene} (march)"), 0.001, 0.01);
     }
 }
 
@@ -408,6 +433,7 @@ fn conformance_on_gpu() {
             method: Method::Hybrid,
             device: Device::Gpu(camera_tr),
             bandwidth: Bandwidth::Fixed,
+            tr: TrMode::Ratio,
         };
         let Some(o) = check_on(&case, &reference, mask.as_deref()) else {
             return;

@@ -607,7 +607,7 @@ impl CameraTracer<'_> {
         in_glass: bool,
         c: &mut Counters,
     ) -> Option<SmallVec<[Walk; 1]>> {
-        let ratio = self.tr_mode == TrMode::Ratio;
+        let ratio = matches!(self.tr_mode, TrMode::Ratio | TrMode::March);
         let nee = self
             .direct
             .as_ref()
@@ -645,6 +645,9 @@ impl CameraTracer<'_> {
             match (self.tr_mode, strat, walks) {
                 (TrMode::Ratio, _, Some(walks)) => SegmentTr::ratio_over(fp, ray, walks, m, rng, c),
                 (TrMode::Ratio, _, None) => SegmentTr::ratio(fp, ray, t_surf, m, rng, c),
+                (TrMode::March, _, Some(walks)) => SegmentTr::Ratio(
+                    crate::transport::march::march_steps(fp, ray, walks, m, rng, c),
+                ),
                 (TrMode::Stratified, Some(mut px), _) => px.pick(fp, ray, t_surf, m, c),
                 _ => SegmentTr::random(fp, ray, t_surf, m, rng, c),
             }

@@ -7,6 +7,7 @@ pub mod direct;
 pub mod emitters;
 pub mod freepath;
 pub mod light;
+pub mod march;
 pub mod transmittance;
 
 use bytemuck::{Pod, Zeroable};

@@ -134,7 +134,7 @@ impl SegmentTr {
             }
             SegmentTr::Ratio(steps) => steps
                 .iter()
-                .find(|s| s.1 <= 0.0)
+                .find(|s| s.1 == 0.0)
                 .map_or(f32::INFINITY, |s| s.0),
         }
     }
