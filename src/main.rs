@@ -90,7 +90,7 @@ counter), and free paths and lookups per thread-second.",
     /// Transmittance benchmark: error vs passes and at equal time (the paper's Figs. 11, 12).
     #[command(
         long_about = "Renders each scene with woodcock+random (the original PPB), \
-woodcock+stratified, adaptive+random, adaptive+stratified and adaptive+ratio, and prints \
+woodcock+stratified, adaptive+random, adaptive+stratified, adaptive+ratio and adaptive+march (unbiased ray marching), and prints \
 rel_l1 against the reference at each pass count with the wall time, then every configuration's \
 error at the PPB baseline's wall time (log-log interpolation).",
         after_help = "Example:\n  ppb bench-tr scenes/conformance/smoke-grid/scene.toml=tests/data/conformance/smoke-grid/reference.exr"

@@ -9,7 +9,7 @@ from collections import defaultdict
 
 from PIL import Image, ImageDraw
 
-COLOURS = [(220, 50, 47), (181, 137, 0), (38, 139, 210), (133, 153, 0), (108, 113, 196)]
+COLOURS = [(220, 50, 47), (181, 137, 0), (38, 139, 210), (133, 153, 0), (108, 113, 196), (42, 161, 152)]
 W, H, M = 460, 300, 60
 
 
@@ -29,9 +29,9 @@ def panel(draw, ox, oy, curves, xkey, title):
     draw.text((ox + W // 2 - 20, oy + H - 25), "passes" if xkey == 0 else "seconds", fill=(0, 0, 0))
     for i, (name, pts) in enumerate(curves.items()):
         line = [(sx(p[xkey]), sy(p[2])) for p in pts]
-        draw.line(line, fill=COLOURS[i % 5], width=2)
+        draw.line(line, fill=COLOURS[i % len(COLOURS)], width=2)
         for x, y in line:
-            draw.ellipse([x - 2, y - 2, x + 2, y + 2], fill=COLOURS[i % 5])
+            draw.ellipse([x - 2, y - 2, x + 2, y + 2], fill=COLOURS[i % len(COLOURS)])
 
 
 def main():
@@ -50,7 +50,7 @@ def main():
     names = list(next(iter(scenes.values())).keys())
     for i, n in enumerate(names):
         y = H * len(scenes) + 8 + 28 * i
-        d.rectangle([M, y, M + 20, y + 12], fill=COLOURS[i % 5])
+        d.rectangle([M, y, M + 20, y + 12], fill=COLOURS[i % len(COLOURS)])
         d.text((M + 30, y), n, fill=(0, 0, 0))
     img.save(sys.argv[2])
 

@@ -1,5 +1,5 @@
 //! `ppb bench-tr`: the paper's Figs. 11 and 12, error against passes and at equal time for
-//! five free-path / camera-transmittance configurations.
+//! five free-path / camera-transmittance configurations, and unbiased ray marching.
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
@@ -48,13 +48,14 @@ pub struct BenchTrArgs {
     pub method: Method,
 }
 
-/// The five configurations of the paper's Figs. 11 and 12.
-const TR_CONFIGS: [(&str, Mode, TrMode); 5] = [
+/// The five configurations of the paper's Figs. 11 and 12, and unbiased ray marching.
+const TR_CONFIGS: [(&str, Mode, TrMode); 6] = [
     ("woodcock+random (PPB)", Mode::Woodcock, TrMode::Random),
     ("woodcock+stratified", Mode::Woodcock, TrMode::Stratified),
     ("adaptive+random", Mode::Adaptive, TrMode::Random),
     ("adaptive+stratified", Mode::Adaptive, TrMode::Stratified),
     ("adaptive+ratio", Mode::Adaptive, TrMode::Ratio),
+    ("adaptive+march", Mode::Adaptive, TrMode::March),
 ];
 
 /// Renders up to the last checkpoint and returns (passes, seconds, image) at each.
