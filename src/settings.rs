@@ -78,7 +78,7 @@ impl Default for RenderSettings {
             exposure: 0.0,
             tr_samples: DEFAULT_TR_SAMPLES,
             free_path: crate::majorant::Mode::Adaptive,
-            tr_mode: TrMode::Ratio,
+            tr_mode: TrMode::March,
             tr_block: DEFAULT_TR_BLOCK,
             octree_depth: crate::majorant::DEFAULT_MAX_DEPTH,
             method: Method::Hybrid,
@@ -201,10 +201,10 @@ pub enum TrMode {
     Random,
     /// The paper's estimator: free paths of a block of passes drawn at once, M strata.
     Stratified,
-    /// Ratio tracking on the octree's local majorants (the default).
+    /// Ratio tracking on the octree's local majorants.
     Ratio,
     /// Unbiased ray marching (Kettunen et al. 2021): jittered marches by the majorant, one
-    /// the control of a power series cut by Russian roulette.
+    /// the control of a power series cut by Russian roulette (the default).
     March,
 }
 

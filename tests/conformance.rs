@@ -170,7 +170,7 @@ fn check_methods(
             method,
             device: Device::Cpu,
             bandwidth: Bandwidth::Fixed,
-            tr: TrMode::Ratio,
+            tr: TrMode::March,
         };
         let o = check_on(&case, reference, mask).expect("CPU render");
         o.assert_within(&format!("{scene} ({method:?})"), ref_noise, mean_tol);
@@ -334,7 +334,7 @@ fn adaptive_bandwidth_matches_references() {
             method: Method::Hybrid,
             device: Device::Cpu,
             bandwidth: Bandwidth::Adaptive,
-            tr: TrMode::Ratio,
+            tr: TrMode::March,
         };
         let reference = format!("tests/data/conformance/{scene}/reference.exr");
         let o = check_on(&case, &reference, None).expect("CPU render");
@@ -342,10 +342,10 @@ fn adaptive_bandwidth_matches_references() {
     }
 }
 
-/// The camera transmittance by unbiased ray marching (`--transmittance march`) converges
-/// to the references within the same bounds.
+/// The camera transmittance by ratio tracking (`--transmittance ratio`, the default before
+/// unbiased ray marching) converges to the references within the same bounds.
 #[test]
-fn ray_marching_transmittance_matches_references() {
+fn ratio_tracking_transmittance_matches_references() {
     for scene in ["smoke-grid", "cloud-hg"] {
         let case = Case {
             scene: &format!("scenes/conformance/{scene}/scene.toml"),
@@ -354,12 +354,12 @@ fn ray_marching_transmittance_matches_references() {
             method: Method::Hybrid,
             device: Device::Cpu,
             bandwidth: Bandwidth::Fixed,
-            tr: TrMode::March,
+            tr: TrMode::Ratio,
         };
         let reference = format!("tests/data/conformance/{scene}/reference.exr");
         let o = check_on(&case, &reference, None).expect("CPU render");
         // Reference block noise 0.1 % (reference.json).
-        o.assert_within(&format!("{scene} (march)"), 0.001, 0.01);
+        o.assert_within(&format!("{scene} (ratio)"), 0.001, 0.01);
     }
 }
 
@@ -433,7 +433,7 @@ fn conformance_on_gpu() {
             method: Method::Hybrid,
             device: Device::Gpu(camera_tr),
             bandwidth: Bandwidth::Fixed,
-            tr: TrMode::Ratio,
+            tr: TrMode::March,
         };
         let Some(o) = check_on(&case, &reference, mask.as_deref()) else {
             return;
