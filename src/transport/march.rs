@@ -39,11 +39,11 @@ const MAX_TERMS: usize = 24;
 /// (t, increment of the optical-depth estimate at t), one march's points.
 type Points = SmallVec<[(f32, f32); 32]>;
 
-/// One march of grid `g` over its walk: cell j of the majorant optical depth s(t) holds the
-/// point s = (j + u) step, weighted step sigma_t / majorant there, an unbiased
-/// estimate of the integral of sigma_t over the cell's part before any t.
+/// One march of grid `g` over its walk, up to `limit`: cell j of the majorant optical depth
+/// s(t) holds the point s = (j + u) step, weighted step sigma_t / majorant there, an
+/// unbiased estimate of the integral of sigma_t over the cell's part before any t.
 fn march(
-    step: f32,
+    (step, limit): (f32, f32),
     g: &Heterogeneous,
     ray: &Ray,
     walk: &Walk,
@@ -66,6 +66,9 @@ fn march(
                 break;
             }
             t += ahead / b.majorant;
+            if t >= limit {
+                return;
+            }
             let ratio = if b.minorant >= b.majorant {
                 1.0
             } else {
@@ -80,7 +83,7 @@ fn march(
 
 /// Every grid's march, merged in order of t.
 fn march_all(
-    step: f32,
+    cells: (f32, f32),
     fp: &FreePath,
     ray: &Ray,
     walks: &[Walk],
@@ -89,7 +92,7 @@ fn march_all(
 ) -> Points {
     let mut out = Points::new();
     for (g, walk) in fp.media.grids.iter().zip(walks) {
-        march(step, g, ray, walk, rng, lookups, &mut out);
+        march(cells, g, ray, walk, rng, lookups, &mut out);
     }
     if walks.len() > 1 {
         out.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -109,7 +112,20 @@ pub fn march_steps(
 ) -> RatioSteps {
     let step = CELLS_PER_DEPTH_OVER_M / m.clamp(1, MAX_TR_SAMPLES) as f32;
     let mut lookups = 0;
-    let control = march_all(step * CONTROL_CELLS, fp, ray, walks, rng, &mut lookups);
+    let control = march_all(
+        (step * CONTROL_CELLS, f32::INFINITY),
+        fp,
+        ray,
+        walks,
+        rng,
+        &mut lookups,
+    );
+    // (where, 1 / chance of going on): None where the control stays above the threshold.
+    let cut = gone(&control).map(|(t, chance)| (t, (rng.f32() < chance).then(|| 1.0 / chance)));
+    let limit = match cut {
+        Some((t, None)) => t,
+        _ => f32::INFINITY,
+    };
     let mut terms: SmallVec<[Points; 4]> = SmallVec::new();
     // weights[k]: 1 / (k! P(reaching term k)).
     let mut weights: SmallVec<[f32; 8]> = SmallVec::from_slice(&[1.0]);
@@ -117,7 +133,7 @@ pub fn march_steps(
         if k >= ALWAYS && rng.f32() >= CONTINUE {
             break;
         }
-        terms.push(march_all(step, fp, ray, walks, rng, &mut lookups));
+        terms.push(march_all((step, limit), fp, ray, walks, rng, &mut lookups));
         let last = weights[k - 1];
         weights.push(last / k as f32 * if k >= ALWAYS { 1.0 / CONTINUE } else { 1.0 });
     }
@@ -134,6 +150,14 @@ pub fn march_steps(
     let mut i = 0;
     while i < events.len() {
         let t = events[i].0;
+        let scale = match cut {
+            Some((at, None)) if t >= at => {
+                steps.push((at, 0.0));
+                break;
+            }
+            Some((at, Some(s))) if t >= at => s,
+            _ => 1.0,
+        };
         while i < events.len() && events[i].0 == t {
             tau[events[i].1] += events[i].2;
             i += 1;
@@ -143,10 +167,23 @@ pub fn march_steps(
             prod *= tc - tau[k];
             sum += prod * weights[k];
         }
-        steps.push((t, (-tc).exp() * sum));
+        steps.push((t, scale * (-tc).exp() * sum));
     }
     roulette_steps(&mut steps, rng);
     steps
+}
+
+/// Where the control's transmittance first falls below ROULETTE_BELOW, and its value there
+/// over ROULETTE_BELOW: the chance that the rest of the segment goes on (scaled by one over
+/// it), drawn before the other marches, which stop there when it does not. In a dense
+/// smoke most segments end so, and the marches past that point would weigh little.
+fn gone(control: &Points) -> Option<(f32, f32)> {
+    let mut tau = 0.0f32;
+    control.iter().find_map(|&(t, d)| {
+        tau += d;
+        let tr = (-tau).exp();
+        (tr < ROULETTE_BELOW).then_some((t, tr / ROULETTE_BELOW))
+    })
 }
 
 /// Russian roulette on a step function, as [`crate::transport::freepath::roulette`] on a
