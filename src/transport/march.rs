@@ -138,18 +138,35 @@ pub fn march_steps(
         weights.push(last / k as f32 * if k >= ALWAYS { 1.0 / CONTINUE } else { 1.0 });
     }
     c.density_lookups += lookups;
-    // Sweep the union of all points: tau_c and each term's tau at every breakpoint.
-    let mut events: SmallVec<[(f32, usize, f32); 64]> = SmallVec::new();
-    events.extend(control.iter().map(|&(t, d)| (t, 0, d)));
-    for (i, p) in terms.iter().enumerate() {
-        events.extend(p.iter().map(|&(t, d)| (t, i + 1, d)));
-    }
-    events.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut tau: SmallVec<[f32; 8]> = SmallVec::from_elem(0.0, terms.len() + 1);
+    let mut steps = sweep(&control, &terms, &weights, cut);
+    roulette_steps(&mut steps, rng);
+    steps
+}
+
+/// The series at every point of the marches, in order of t: tau_c and each term's tau
+/// summed up to there, a k-way merge of the already ordered marches (ties in march order,
+/// as a stable sort of their union would give). Past a cut that ended the segment the
+/// value is 0; past one it survived, scaled by one over its chance.
+fn sweep(
+    control: &Points,
+    terms: &[Points],
+    weights: &[f32],
+    cut: Option<(f32, Option<f32>)>,
+) -> RatioSteps {
+    let lists: SmallVec<[&[(f32, f32)]; 8]> = std::iter::once(&control[..])
+        .chain(terms.iter().map(|p| &p[..]))
+        .collect();
+    let mut heads: SmallVec<[usize; 8]> = SmallVec::from_elem(0, lists.len());
+    let mut tau: SmallVec<[f32; 8]> = SmallVec::from_elem(0.0, lists.len());
+    let mut control_tr = 1.0f32;
     let mut steps = RatioSteps::new();
-    let mut i = 0;
-    while i < events.len() {
-        let t = events[i].0;
+    loop {
+        let next = lists
+            .iter()
+            .zip(&heads)
+            .filter_map(|(l, &h)| l.get(h).map(|p| p.0))
+            .reduce(f32::min);
+        let Some(t) = next else { break };
         let scale = match cut {
             Some((at, None)) if t >= at => {
                 steps.push((at, 0.0));
@@ -158,18 +175,27 @@ pub fn march_steps(
             Some((at, Some(s))) if t >= at => s,
             _ => 1.0,
         };
-        while i < events.len() && events[i].0 == t {
-            tau[events[i].1] += events[i].2;
-            i += 1;
+        let before = heads.iter().sum::<usize>();
+        for (k, list) in lists.iter().enumerate() {
+            while let Some(&(_, d)) = list.get(heads[k]).filter(|p| p.0 == t) {
+                tau[k] += d;
+                heads[k] += 1;
+                if k == 0 {
+                    control_tr = (-tau[0]).exp();
+                }
+            }
+        }
+        // Only a NaN distance (a NaN ray) matches nothing: end there rather than loop.
+        if heads.iter().sum::<usize>() == before {
+            break;
         }
         let (tc, mut prod, mut sum) = (tau[0], 1.0f32, 1.0f32);
-        for k in 1..=terms.len() {
+        for k in 1..lists.len() {
             prod *= tc - tau[k];
             sum += prod * weights[k];
         }
-        steps.push((t, scale * (-tc).exp() * sum));
+        steps.push((t, scale * control_tr * sum));
     }
-    roulette_steps(&mut steps, rng);
     steps
 }
 
@@ -271,6 +297,73 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The merge gives, bit for bit, the sweep over the stable-sorted union of the marches'
+    /// points, with ties across marches (points on a shared grid of t) and every kind of cut.
+    #[test]
+    fn sweep_equals_the_sorted_union() {
+        let naive = |lists: &[Points], weights: &[f32], cut: Option<(f32, Option<f32>)>| {
+            let mut events: Vec<(f32, usize, f32)> = Vec::new();
+            for (k, l) in lists.iter().enumerate() {
+                events.extend(l.iter().map(|&(t, d)| (t, k, d)));
+            }
+            events.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut tau = vec![0.0f32; lists.len()];
+            let mut steps = RatioSteps::new();
+            let mut i = 0;
+            while i < events.len() {
+                let t = events[i].0;
+                let scale = match cut {
+                    Some((at, None)) if t >= at => {
+                        steps.push((at, 0.0));
+                        break;
+                    }
+                    Some((at, Some(s))) if t >= at => s,
+                    _ => 1.0,
+                };
+                while i < events.len() && events[i].0 == t {
+                    tau[events[i].1] += events[i].2;
+                    i += 1;
+                }
+                let (tc, mut prod, mut sum) = (tau[0], 1.0f32, 1.0f32);
+                for k in 1..lists.len() {
+                    prod *= tc - tau[k];
+                    sum += prod * weights[k];
+                }
+                steps.push((t, scale * (-tc).exp() * sum));
+            }
+            steps
+        };
+        let mut rng = Rng::new(11, 3);
+        for case in 0..300 {
+            let n = 2 + case % 4;
+            let lists: Vec<Points> = (0..n)
+                .map(|_| {
+                    let mut t = 0.0f32;
+                    (0..(rng.f32() * 40.0) as usize)
+                        .map(|_| {
+                            // Steps of 1/8 put many points of different marches on one t.
+                            t += (1.0 + (rng.f32() * 4.0).floor()) / 8.0;
+                            (t, rng.f32() * 0.7)
+                        })
+                        .collect()
+                })
+                .collect();
+            let weights: Vec<f32> = (0..n).map(|k| 1.0 / (k + 1) as f32).collect();
+            let at = rng.f32() * 6.0;
+            let cut = match case % 3 {
+                0 => None,
+                1 => Some((at, None)),
+                _ => Some((at, Some(3.0))),
+            };
+            let got = sweep(&lists[0], &lists[1..], &weights, cut);
+            let want = naive(&lists, &weights, cut);
+            let bits = |s: &RatioSteps| -> Vec<(u32, u32)> {
+                s.iter().map(|p| (p.0.to_bits(), p.1.to_bits())).collect()
+            };
+            assert_eq!(bits(&got), bits(&want), "case {case}");
         }
     }
 
