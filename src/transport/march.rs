@@ -143,6 +143,25 @@ pub fn march_steps(
     steps
 }
 
+/// What a cut makes of the estimate at t: Err(where) past a cut that ended the segment,
+/// one over the chance past one it survived, else 1.
+fn cut_scale(cut: Option<(f32, Option<f32>)>, t: f32) -> Result<f32, f32> {
+    match cut {
+        Some((at, survived)) if t >= at => survived.ok_or(at),
+        _ => Ok(1.0),
+    }
+}
+
+/// The series sum_k weights[k] prod_{j <= k} (tau_c - tau_j), tau_c = tau[0].
+fn series(tau: &[f32], weights: &[f32]) -> f32 {
+    let (tc, mut prod, mut sum) = (tau[0], 1.0f32, 1.0f32);
+    for k in 1..tau.len() {
+        prod *= tc - tau[k];
+        sum += prod * weights[k];
+    }
+    sum
+}
+
 /// The series at every point of the marches, in order of t: tau_c and each term's tau
 /// summed up to there, a k-way merge of the already ordered marches (ties in march order,
 /// as a stable sort of their union would give). Past a cut that ended the segment the
@@ -167,34 +186,29 @@ fn sweep(
             .filter_map(|(l, &h)| l.get(h).map(|p| p.0))
             .reduce(f32::min);
         let Some(t) = next else { break };
-        let scale = match cut {
-            Some((at, None)) if t >= at => {
+        let scale = match cut_scale(cut, t) {
+            Ok(s) => s,
+            Err(at) => {
                 steps.push((at, 0.0));
                 break;
             }
-            Some((at, Some(s))) if t >= at => s,
-            _ => 1.0,
         };
-        let before = heads.iter().sum::<usize>();
+        let mut moved = false;
         for (k, list) in lists.iter().enumerate() {
             while let Some(&(_, d)) = list.get(heads[k]).filter(|p| p.0 == t) {
                 tau[k] += d;
                 heads[k] += 1;
+                moved = true;
                 if k == 0 {
                     control_tr = (-tau[0]).exp();
                 }
             }
         }
         // Only a NaN distance (a NaN ray) matches nothing: end there rather than loop.
-        if heads.iter().sum::<usize>() == before {
+        if !moved {
             break;
         }
-        let (tc, mut prod, mut sum) = (tau[0], 1.0f32, 1.0f32);
-        for k in 1..lists.len() {
-            prod *= tc - tau[k];
-            sum += prod * weights[k];
-        }
-        steps.push((t, scale * control_tr * sum));
+        steps.push((t, scale * control_tr * series(&tau, weights)));
     }
     steps
 }
@@ -315,24 +329,18 @@ mod tests {
             let mut i = 0;
             while i < events.len() {
                 let t = events[i].0;
-                let scale = match cut {
-                    Some((at, None)) if t >= at => {
+                let scale = match cut_scale(cut, t) {
+                    Ok(s) => s,
+                    Err(at) => {
                         steps.push((at, 0.0));
                         break;
                     }
-                    Some((at, Some(s))) if t >= at => s,
-                    _ => 1.0,
                 };
                 while i < events.len() && events[i].0 == t {
                     tau[events[i].1] += events[i].2;
                     i += 1;
                 }
-                let (tc, mut prod, mut sum) = (tau[0], 1.0f32, 1.0f32);
-                for k in 1..lists.len() {
-                    prod *= tc - tau[k];
-                    sum += prod * weights[k];
-                }
-                steps.push((t, scale * (-tc).exp() * sum));
+                steps.push((t, scale * (-tau[0]).exp() * series(&tau, weights)));
             }
             steps
         };
