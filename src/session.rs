@@ -154,7 +154,7 @@ impl Session {
     /// GPU, still running when this returns).
     pub fn pass(&mut self, p: &PassPlan) -> Result<()> {
         let t0 = Instant::now();
-        let beam_map = self.beams.get().needs_beam_map();
+        let beam_map = self.beams.get().beam_map();
         let traced = self.tracer.trace(p, self.strat.as_mut(), beam_map);
         let t1 = Instant::now();
         self.film.add_pass(p.odd, &traced.camera.image);

@@ -133,19 +133,19 @@ fn small_public(scene: &str) -> (ppb::scene::toml::SceneFile, RenderSettings) {
 }
 
 /// The splat (primary segments drawn as thick lines over the pixels they can touch) finds
-/// every pair the BVH gather finds: on each public scene and two passes (radii shrinking),
+/// every pair the BVH gather finds, over either walker's tree: on each public scene and two passes (radii shrinking),
 /// both count the same kernel evaluations and give the same pixels up to the order of
 /// their sums. A span too narrow for some pair would lose its evaluation here.
 #[test]
 fn splat_finds_every_pair_the_gather_finds() {
     use ppb::core::Ray;
-    use ppb::estimate::beams::BeamMap;
+    use ppb::estimate::beams::{BeamMap, MapNeed, Walker};
     use ppb::transport::transmittance::camera_tr;
     for scene in ["smoke-grid", "cloud-hg", "fog-box", "glass-caustic"] {
         let (file, s) = small_public(scene);
         let r = Tracer::new(&file.scene, s).expect("tracer");
         for i in [1, 40] {
-            let t = r.trace(&r.plan().pass(i), None, true);
+            let t = r.trace(&r.plan().pass(i), None, MapNeed::CPU);
             let (splat, splat_evals) = ppb::estimate::splat::splat(
                 r.camera(),
                 &t.camera.primaries,
@@ -154,34 +154,39 @@ fn splat_finds_every_pair_the_gather_finds() {
                 r.media(),
                 ppb::core::simd::isa(),
             );
-            let map = BeamMap::build(&t.beams, t.beam_radius);
-            let media = r.media();
-            let mut evals = 0u64;
-            let (mut diff, mut total) = (0.0f64, 0.0f64);
-            for (p, a) in t.camera.primaries.iter().zip(&splat) {
-                let ray = Ray::new(r.camera().origin(), p.dir);
-                // The segment the splat draws: crossings past where the transmittance
-                // estimate is 0 weigh nothing and are left out of both.
-                let b = map.nested_radiance(
-                    &ray,
-                    (0.0, p.tr.seen_until(p.t_surf)),
-                    |x, cos| media.in_scatter(x, cos),
-                    |t| camera_tr(&p.chords, &p.tr, t),
-                    &mut evals,
-                );
-                // The image and its nested half-radius difference alike.
-                for (a, b) in [(a.l, b.l), (a.d, b.d)] {
-                    diff += (a - b).abs().element_sum() as f64;
-                    total += b.abs().element_sum() as f64;
+            for walker in [Walker::Cpu, Walker::Gpu] {
+                let map = BeamMap::build(&t.beams, t.beam_radius, walker);
+                let media = r.media();
+                let mut evals = 0u64;
+                let (mut diff, mut total) = (0.0f64, 0.0f64);
+                for (p, a) in t.camera.primaries.iter().zip(&splat) {
+                    let ray = Ray::new(r.camera().origin(), p.dir);
+                    // The segment the splat draws: crossings past where the transmittance
+                    // estimate is 0 weigh nothing and are left out of both.
+                    let b = map.nested_radiance(
+                        &ray,
+                        (0.0, p.tr.seen_until(p.t_surf)),
+                        |x, cos| media.in_scatter(x, cos),
+                        |t| camera_tr(&p.chords, &p.tr, t),
+                        &mut evals,
+                    );
+                    // The image and its nested half-radius difference alike.
+                    for (a, b) in [(a.l, b.l), (a.d, b.d)] {
+                        diff += (a - b).abs().element_sum() as f64;
+                        total += b.abs().element_sum() as f64;
+                    }
                 }
+                assert!(evals > 10_000, "{scene} pass {i}: only {evals} evaluations");
+                assert_eq!(
+                    splat_evals, evals,
+                    "{scene} pass {i} {walker:?}: evaluations"
+                );
+                assert!(
+                    diff <= 1e-6 * total,
+                    "{scene} pass {i} {walker:?}: rel_l1 {}",
+                    diff / total
+                );
             }
-            assert!(evals > 10_000, "{scene} pass {i}: only {evals} evaluations");
-            assert_eq!(splat_evals, evals, "{scene} pass {i}: evaluations");
-            assert!(
-                diff <= 1e-6 * total,
-                "{scene} pass {i}: rel_l1 {}",
-                diff / total
-            );
         }
     }
 }
@@ -192,6 +197,7 @@ fn splat_finds_every_pair_the_gather_finds() {
 /// exactly zero. Smoke-grid and cloud-hg, two passes each.
 #[test]
 fn beams_cut_to_the_density_keep_the_image() {
+    use ppb::estimate::beams::MapNeed;
     use ppb::geometry::Geometry;
     use ppb::settings::{Method, SMOOTH_BEAM_SCALE};
     use ppb::transport::freepath::FreePath;
@@ -207,7 +213,7 @@ fn beams_cut_to_the_density_keep_the_image() {
         let lights = LightSampler::new(&file.scene.lights, [g[0].min(m[0]), g[1].max(m[1])]);
         for i in [1, 40] {
             let p = r.plan().pass(i);
-            let t = r.trace(&p, None, false);
+            let t = r.trace(&p, None, MapNeed::CPU);
             let beams = |support: &ppb::media::Support| {
                 let lt = LightTracer {
                     lights: &lights,

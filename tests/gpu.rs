@@ -11,7 +11,7 @@ use std::process::Command;
 use glam::Vec3;
 use ppb::compare::DeviceDiff;
 use ppb::core::Ray;
-use ppb::estimate::beams::BeamMap;
+use ppb::estimate::beams::{BeamMap, MapNeed, Walker};
 use ppb::estimate::eq2;
 use ppb::estimate::eq2::BeamPiece;
 use ppb::estimate::{Timings, TracedPass};
@@ -22,11 +22,18 @@ use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::scene::Camera;
 use ppb::settings::MAX_TR_SAMPLES;
+
 use ppb::settings::{Bandwidth, TrMode};
 use ppb::transport::camera::{CameraPass, Pinhole, Primary};
 use ppb::transport::freepath::RatioSteps;
 use ppb::transport::transmittance::SegmentTr;
 use ppb::transport::{Beam, Counters};
+
+/// The binary tree both walkers read, built for every pass.
+const GPU_MAP: MapNeed = MapNeed {
+    walker: Walker::Gpu,
+    every_pass: true,
+};
 
 fn data(p: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -65,7 +72,7 @@ fn parity(
         secondary: 0,
     };
     for &i in passes {
-        let t = r.trace(&r.plan().pass(i), None, true);
+        let t = r.trace(&r.plan().pass(i), None, GPU_MAP);
         let (cpu, evals) = r.beam_image(&t);
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
@@ -110,7 +117,10 @@ fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what:
     if pixels.is_empty() {
         return;
     }
-    let (map, media) = (BeamMap::build(&t.beams, t.beam_radius), r.media());
+    let (map, media) = (
+        BeamMap::build(&t.beams, t.beam_radius, Walker::Gpu),
+        r.media(),
+    );
     let w = r.settings.width as usize;
     for i in pixels {
         let p = &t.camera.primaries[i];
@@ -303,7 +313,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let mut s = file.settings.clone();
     s.method = ppb::settings::Method::Ppb;
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let t = r.trace(&r.plan().pass(1), None, true);
+    let t = r.trace(&r.plan().pass(1), None, GPU_MAP);
     let (cpu, _) = r.beam_image(&t);
     let opts = GpuOptions::new(PrimaryPath::Gather, CameraTr::Steps, &r.settings);
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
@@ -327,7 +337,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     (s.width, s.height, s.light_paths) = (128, 128, 100_000);
     s.method = ppb::settings::Method::Ppb;
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let t = r.trace(&r.plan().pass(1), None, true);
+    let t = r.trace(&r.plan().pass(1), None, GPU_MAP);
     let (cpu, _) = r.beam_image(&t);
     let software = g.info.device_type == wgpu::DeviceType::Cpu;
     let runs = [
@@ -585,7 +595,7 @@ fn one_pixel_on_gpu(
             secondary: Vec::new(),
             counters: Counters::default(),
         },
-        beam_map: Some(BeamMap::build(&[b], r)),
+        beam_map: Some(BeamMap::build(&[b], r, Walker::Gpu)),
         beams: vec![b],
         beam_radius: r,
         counters: Counters::default(),

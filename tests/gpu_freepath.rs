@@ -371,7 +371,7 @@ fn walk_visits_the_cpu_leaves() {
 /// mean must match quadrature within 5 measured standard errors.
 #[test]
 fn beam_estimate_tracks_camera_transmittance() {
-    use ppb::estimate::beams::BeamMap;
+    use ppb::estimate::beams::{BeamMap, Walker};
     use ppb::estimate::eq2;
     use ppb::estimate::eq2::BeamPiece;
     use ppb::estimate::{Timings, TracedPass};
@@ -436,7 +436,7 @@ fn beam_estimate_tracks_camera_transmittance() {
                     secondary: Vec::new(),
                     counters: Counters::default(),
                 },
-                beam_map: Some(BeamMap::build(&[beam], R)),
+                beam_map: Some(BeamMap::build(&[beam], R, Walker::Gpu)),
                 beams: vec![beam],
                 beam_radius: R,
                 counters: Counters::default(),

@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use ppb::error::Result;
+use ppb::estimate::beams::MapNeed;
 use ppb::estimate::Estimator;
 use ppb::estimate::{cpu, TracedPass, View};
 use ppb::film::Film;
@@ -31,8 +32,8 @@ impl Estimator for Recorder {
     fn describe(&self) -> String {
         "recorder".into()
     }
-    fn needs_beam_map(&self) -> bool {
-        false
+    fn beam_map(&self) -> MapNeed {
+        MapNeed::CPU
     }
     fn estimate(
         &mut self,

@@ -10,7 +10,7 @@ use std::f64::consts::PI;
 
 use ppb::core::ray_box;
 use ppb::core::Ray;
-use ppb::estimate::beams::BeamMap;
+use ppb::estimate::beams::{BeamMap, Walker};
 use ppb::geometry::Geometry;
 use ppb::majorant::Mode;
 use ppb::media::{Media, MediumDesc, Phase};
@@ -200,7 +200,7 @@ fn estimate(
     let values: Vec<f64> = (1..=passes)
         .map(|pass| {
             let lp = tracer.trace_pass(seed, pass, paths);
-            let map = BeamMap::build(&lp.beams, radius);
+            let map = BeamMap::build(&lp.beams, radius, Walker::Cpu);
             let mut evals = 0;
             let l = map.radiance(
                 ray,

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use ppb::compare::DeviceDiff;
 use ppb::error::Result as PpbResult;
+use ppb::estimate::beams::{MapNeed, Walker};
 use ppb::estimate::Estimator;
 use ppb::estimate::{TracedPass, View};
 use ppb::film::{Film, Held};
@@ -55,8 +56,12 @@ impl Estimator for Race {
             .map_or_else(|| "cpu".into(), |g| g.describe())
     }
 
-    fn needs_beam_map(&self) -> bool {
-        true
+    /// The binary tree, which both the CPU and the GPU walk, for every pass.
+    fn beam_map(&self) -> MapNeed {
+        MapNeed {
+            walker: Walker::Gpu,
+            every_pass: true,
+        }
     }
 
     fn estimate(

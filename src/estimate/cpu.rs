@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 use std::time::Instant;
 
-use super::beams::BeamMap;
+use super::beams::{BeamMap, MapNeed};
 use super::splat::splat;
 use super::{Estimator, TracedPass, View};
 use crate::core::simd;
@@ -24,8 +24,8 @@ impl Estimator for CpuBeams {
         "cpu".into()
     }
 
-    fn needs_beam_map(&self) -> bool {
-        false
+    fn beam_map(&self) -> MapNeed {
+        MapNeed::CPU
     }
 
     fn estimate(

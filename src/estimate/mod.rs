@@ -17,7 +17,7 @@ use crate::film::{Film, Held};
 use crate::media::Media;
 use crate::transport::camera::{CameraPass, Pinhole};
 use crate::transport::{Beam, Counters};
-use beams::BeamMap;
+use beams::{BeamMap, MapNeed};
 
 /// Wall-clock seconds of one pass's stages.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -69,8 +69,8 @@ pub struct View<'a> {
 pub trait Estimator: Send {
     /// "cpu", or the GPU adapter.
     fn describe(&self) -> String;
-    /// Whether a traced pass must carry the beam BVH for every camera segment.
-    fn needs_beam_map(&self) -> bool;
+    /// Which beam BVH a traced pass must carry, and when.
+    fn beam_map(&self) -> MapNeed;
     /// Adds pass `t`'s beam estimate to `film` (CPU), or starts it and returns while it
     /// runs, its sums kept aside until [`Estimator::held`] (GPU). `traced` is when the CPU
     /// traced `t`. Returns the beam evaluations counted now.

@@ -41,6 +41,7 @@ use super::layout::{
 };
 use super::{compute_pipelines, Gpu};
 use crate::error::{Error, Result};
+use crate::estimate::beams::{MapNeed, Walker};
 use crate::estimate::Estimator;
 use crate::estimate::{TracedPass, View};
 use crate::film::{Film, Held};
@@ -293,7 +294,12 @@ impl GpuBeams {
     /// segments and of quads.
     fn upload(&mut self, t: &TracedPass, media: &Media, raster: bool) -> Result<(u32, u32)> {
         let (nodes, pieces) = match &t.beam_map {
-            Some(map) => (map.nodes(), map.pieces()),
+            Some(map) => {
+                let nodes = map.nodes().ok_or_else(|| {
+                    Error::Gpu("the pass's beam map was built for the CPU's walk".into())
+                })?;
+                (nodes, map.pieces())
+            }
             None => (Vec::new(), &[][..]),
         };
         let origin = self.camera.origin();
@@ -554,9 +560,12 @@ impl Estimator for GpuBeams {
     }
 
     /// Gathered segments walk the beam BVH; rasterised primaries do not (auto's trial
-    /// keeps it until the choice is made).
-    fn needs_beam_map(&self) -> bool {
-        self.path == PrimaryPath::Gather || self.trial.is_some()
+    /// keeps it until the choice is made), but segments after specular surfaces do.
+    fn beam_map(&self) -> MapNeed {
+        MapNeed {
+            walker: Walker::Gpu,
+            every_pass: self.path == PrimaryPath::Gather || self.trial.is_some(),
+        }
     }
 
     fn estimate(
