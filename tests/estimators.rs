@@ -133,9 +133,9 @@ fn small_public(scene: &str) -> (ppb::scene::toml::SceneFile, RenderSettings) {
 }
 
 /// The splat (primary segments drawn as thick lines over the pixels they can touch) finds
-/// every pair the BVH gather finds, over either walker's tree: on each public scene and two passes (radii shrinking),
-/// both count the same kernel evaluations and give the same pixels up to the order of
-/// their sums. A span too narrow for some pair would lose its evaluation here.
+/// every pair the BVH gather finds, over either walker's tree: on each public scene and
+/// two passes (radii shrinking), both count the same kernel evaluations and give the same
+/// pixels up to the order of their sums. A span too narrow for some pair would lose its evaluation here.
 #[test]
 fn splat_finds_every_pair_the_gather_finds() {
     use ppb::core::Ray;
@@ -154,9 +154,9 @@ fn splat_finds_every_pair_the_gather_finds() {
                 r.media(),
                 ppb::core::simd::isa(),
             );
+            let media = r.media();
             for walker in [Walker::Cpu, Walker::Gpu] {
                 let map = BeamMap::build(&t.beams, t.beam_radius, walker);
-                let media = r.media();
                 let mut evals = 0u64;
                 let (mut diff, mut total) = (0.0f64, 0.0f64);
                 for (p, a) in t.camera.primaries.iter().zip(&splat) {

@@ -22,18 +22,11 @@ use ppb::pass::Tracer;
 use ppb::scene::toml::load;
 use ppb::scene::Camera;
 use ppb::settings::MAX_TR_SAMPLES;
-
 use ppb::settings::{Bandwidth, TrMode};
 use ppb::transport::camera::{CameraPass, Pinhole, Primary};
 use ppb::transport::freepath::RatioSteps;
 use ppb::transport::transmittance::SegmentTr;
 use ppb::transport::{Beam, Counters};
-
-/// The binary tree both walkers read, built for every pass.
-const GPU_MAP: MapNeed = MapNeed {
-    walker: Walker::Gpu,
-    every_pass: true,
-};
 
 fn data(p: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -72,7 +65,7 @@ fn parity(
         secondary: 0,
     };
     for &i in passes {
-        let t = r.trace(&r.plan().pass(i), None, GPU_MAP);
+        let t = r.trace(&r.plan().pass(i), None, MapNeed::GPU_EVERY_PASS);
         let (cpu, evals) = r.beam_image(&t);
         est.clear().expect("clear");
         est.submit(&t, r.media()).expect("submit");
@@ -313,7 +306,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let mut s = file.settings.clone();
     s.method = ppb::settings::Method::Ppb;
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let t = r.trace(&r.plan().pass(1), None, GPU_MAP);
+    let t = r.trace(&r.plan().pass(1), None, MapNeed::GPU_EVERY_PASS);
     let (cpu, _) = r.beam_image(&t);
     let opts = GpuOptions::new(PrimaryPath::Gather, CameraTr::Steps, &r.settings);
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
@@ -337,7 +330,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     (s.width, s.height, s.light_paths) = (128, 128, 100_000);
     s.method = ppb::settings::Method::Ppb;
     let r = Tracer::new(&file.scene, s).expect("renderer");
-    let t = r.trace(&r.plan().pass(1), None, GPU_MAP);
+    let t = r.trace(&r.plan().pass(1), None, MapNeed::GPU_EVERY_PASS);
     let (cpu, _) = r.beam_image(&t);
     let software = g.info.device_type == wgpu::DeviceType::Cpu;
     let runs = [

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use ppb::compare::DeviceDiff;
 use ppb::error::Result as PpbResult;
-use ppb::estimate::beams::{MapNeed, Walker};
+use ppb::estimate::beams::MapNeed;
 use ppb::estimate::Estimator;
 use ppb::estimate::{TracedPass, View};
 use ppb::film::{Film, Held};
@@ -58,10 +58,7 @@ impl Estimator for Race {
 
     /// The binary tree, which both the CPU and the GPU walk, for every pass.
     fn beam_map(&self) -> MapNeed {
-        MapNeed {
-            walker: Walker::Gpu,
-            every_pass: true,
-        }
+        MapNeed::GPU_EVERY_PASS
     }
 
     fn estimate(

@@ -82,6 +82,11 @@ impl MapNeed {
         walker: Walker::Cpu,
         every_pass: false,
     };
+    /// The binary tree for every pass: the GPU's gather, and a pass both devices estimate.
+    pub const GPU_EVERY_PASS: MapNeed = MapNeed {
+        walker: Walker::Gpu,
+        every_pass: true,
+    };
 }
 
 enum Tree {

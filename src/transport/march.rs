@@ -193,16 +193,16 @@ fn sweep(
                 break;
             }
         };
-        let mut moved = false;
+        let (control_before, mut moved) = (heads[0], false);
         for (k, list) in lists.iter().enumerate() {
             while let Some(&(_, d)) = list.get(heads[k]).filter(|p| p.0 == t) {
                 tau[k] += d;
                 heads[k] += 1;
                 moved = true;
-                if k == 0 {
-                    control_tr = (-tau[0]).exp();
-                }
             }
+        }
+        if heads[0] != control_before {
+            control_tr = (-tau[0]).exp();
         }
         // Only a NaN distance (a NaN ray) matches nothing: end there rather than loop.
         if !moved {
