@@ -102,6 +102,12 @@ pub struct Overrides {
     /// radiance is smooth).
     #[arg(long, value_enum)]
     pub bandwidth: Option<ppb::settings::Bandwidth>,
+    /// How a beam is blurred across its direction (overrides [render].beam_kernel): tube
+    /// (a 2D disk, gathered over each camera ray's chord through it: no 1/sin(theta)
+    /// weight, far less noise where beams point at the camera; the default on the CPU) or
+    /// line (the paper's eq. 2; the default with --method ppb, and the GPU's only kernel).
+    #[arg(long, value_enum)]
+    pub beam_kernel: Option<ppb::settings::BeamKernel>,
 }
 
 impl Overrides {
@@ -142,6 +148,9 @@ impl Overrides {
         s.transparent |= self.transparent;
         if let Some(b) = self.bandwidth {
             s.bandwidth = b;
+        }
+        if let Some(k) = self.beam_kernel {
+            s.beam_kernel = Some(k);
         }
         if let Err(e) = s.validate() {
             let flag = match e.field {
@@ -382,6 +391,11 @@ impl OutputMeta<'_> {
             ("ppb/method", format!("{:?}", s.method).to_lowercase()),
             ("ppb/transparent", s.transparent.to_string()),
             ("ppb/bandwidth", format!("{:?}", s.bandwidth).to_lowercase()),
+            (
+                "ppb/beam_kernel",
+                s.beam_kernel
+                    .map_or("auto".into(), |k| format!("{k:?}").to_lowercase()),
+            ),
             ("ppb/light_paths", s.light_paths.to_string()),
             ("ppb/alpha", s.alpha.to_string()),
             ("ppb/photon_alpha", s.photon_alpha.to_string()),

@@ -47,6 +47,9 @@ pub struct RenderSettings {
     /// The beams' kernel radius per pixel: eq. 3's everywhere, or chosen per pixel
     /// between it and its half (`film::error`).
     pub bandwidth: Bandwidth,
+    /// The beams' kernel across their direction; None: the tube on the CPU with the hybrid
+    /// method, eq. 2's line with the paper's and on the GPU (whose shader has only that).
+    pub beam_kernel: Option<BeamKernel>,
 }
 
 pub use crate::film::error::Bandwidth;
@@ -60,6 +63,28 @@ pub enum Method {
     Hybrid,
     /// The paper's pure method: all light through photon beams and photons.
     Ppb,
+}
+
+/// How a beam is blurred across its direction (Jarosz et al. 2011's beam x beam
+/// estimators; `estimate::eq2` and `estimate::tube`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BeamKernel {
+    /// The paper's eq. 2: a 1D box across both lines, each pair weighted by 1/sin(theta).
+    Line,
+    /// A 2D box across the beam, which the camera ray gathers over its chord through it:
+    /// no 1/sin(theta), whose tail was a third of cloud-hg's per-pixel noise.
+    Tube,
+}
+
+impl BeamKernel {
+    /// How many times as high the kernel is at r/2 as at r (the nested estimate's ratio).
+    pub fn inner_ratio(self) -> f32 {
+        match self {
+            BeamKernel::Line => 2.0,
+            BeamKernel::Tube => 4.0,
+        }
+    }
 }
 
 impl Default for RenderSettings {
@@ -85,6 +110,7 @@ impl Default for RenderSettings {
             nee_samples: DEFAULT_NEE_SAMPLES,
             transparent: false,
             bandwidth: Bandwidth::Fixed,
+            beam_kernel: None,
         }
     }
 }
@@ -108,6 +134,15 @@ pub struct Invalid {
 }
 
 impl RenderSettings {
+    /// The kernel the CPU's beam estimate uses: the one asked for, else the tube, or the
+    /// paper's line with its pure method (so that `--method ppb` reproduces its tables).
+    pub fn cpu_beam_kernel(&self) -> BeamKernel {
+        self.beam_kernel.unwrap_or(match self.method {
+            Method::Hybrid => BeamKernel::Tube,
+            Method::Ppb => BeamKernel::Line,
+        })
+    }
+
     /// The one check of every range: the scene reader, the command-line overrides and
     /// the tracer all ask it.
     pub fn validate(&self) -> Result<(), Invalid> {

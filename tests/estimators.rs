@@ -140,6 +140,7 @@ fn small_public(scene: &str) -> (ppb::scene::toml::SceneFile, RenderSettings) {
 fn splat_finds_every_pair_the_gather_finds() {
     use ppb::core::Ray;
     use ppb::estimate::beams::{BeamMap, MapNeed, Walker};
+    use ppb::estimate::eq2::BeamKernel;
     use ppb::transport::transmittance::camera_tr;
     for scene in ["smoke-grid", "cloud-hg", "fog-box", "glass-caustic"] {
         let (file, s) = small_public(scene);
@@ -150,7 +151,7 @@ fn splat_finds_every_pair_the_gather_finds() {
                 r.camera(),
                 &t.camera.primaries,
                 &t.beams,
-                t.beam_radius,
+                (t.beam_radius, BeamKernel::Line),
                 r.media(),
                 ppb::core::simd::isa(),
             );
@@ -166,6 +167,7 @@ fn splat_finds_every_pair_the_gather_finds() {
                     let b = map.nested_radiance(
                         &ray,
                         (0.0, p.tr.seen_until(p.t_surf)),
+                        BeamKernel::Line,
                         |x, cos| media.in_scatter(x, cos),
                         |t| camera_tr(&p.chords, &p.tr, t),
                         &mut evals,
@@ -188,6 +190,56 @@ fn splat_finds_every_pair_the_gather_finds() {
                 );
             }
         }
+    }
+}
+
+/// With the tube kernel the splat evaluates exactly the pairs whose chord counts: every
+/// pixel's seen segment against every beam, by brute force (eq2's parallel test, then
+/// `tube::counts` at the beam's own radius), on cloud-hg and smoke-grid, pass 1. A row
+/// span too narrow for a pair near a beam's end plane would lose its evaluation here.
+#[test]
+fn splat_finds_every_tube_pair() {
+    use ppb::estimate::beams::MapNeed;
+    use ppb::estimate::eq2::{crossing, BeamKernel};
+    use ppb::estimate::tube;
+    use rayon::prelude::*;
+    for scene in ["cloud-hg", "smoke-grid"] {
+        let (file, s) = small_public(scene);
+        let r = Tracer::new(&file.scene, s).expect("tracer");
+        let t = r.trace(&r.plan().pass(1), None, MapNeed::CPU);
+        let (_, evals) = ppb::estimate::splat::splat(
+            r.camera(),
+            &t.camera.primaries,
+            &t.beams,
+            (t.beam_radius, BeamKernel::Tube),
+            r.media(),
+            ppb::core::simd::isa(),
+        );
+        let o = r.camera().origin();
+        let brute: u64 = t
+            .camera
+            .primaries
+            .par_iter()
+            .map(|p| {
+                let span = (0.0, p.tr.seen_until(p.t_surf));
+                t.beams
+                    .iter()
+                    .filter(|b| {
+                        let (y, psi) = (Vec3::from(b.origin), Vec3::from(b.dir));
+                        crossing(o, p.dir, y, psi).is_some()
+                            && tube::counts(
+                                (o.into(), p.dir.into()),
+                                (b.origin, b.dir),
+                                span,
+                                (0.0, b.length),
+                                t.beam_radius * b.scale,
+                            )
+                    })
+                    .count() as u64
+            })
+            .sum();
+        assert!(brute > 10_000, "{scene}: only {brute} pairs");
+        assert_eq!(evals, brute, "{scene}: splat against brute force");
     }
 }
 
@@ -244,7 +296,7 @@ fn beams_cut_to_the_density_keep_the_image() {
                     r.camera(),
                     &t.camera.primaries,
                     beams,
-                    t.beam_radius,
+                    (t.beam_radius, ppb::estimate::eq2::BeamKernel::Line),
                     media,
                     ppb::core::simd::isa(),
                 )

@@ -13,7 +13,7 @@ use ppb::compare::DeviceDiff;
 use ppb::core::Ray;
 use ppb::estimate::beams::{BeamMap, MapNeed, Walker};
 use ppb::estimate::eq2;
-use ppb::estimate::eq2::BeamPiece;
+use ppb::estimate::eq2::{BeamKernel, BeamPiece};
 use ppb::estimate::{Timings, TracedPass};
 use ppb::gpu::beams::{CameraTr, GpuBeams, GpuOptions, PrimaryPath};
 use ppb::majorant::Mode;
@@ -54,6 +54,7 @@ fn parity(
     let file = load(&data(scene)).expect("scene loads");
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths, s.tr_mode) = (size, size, beams, tr);
+    s.beam_kernel = Some(BeamKernel::Line);
     let r = Tracer::new(&file.scene, s).expect("renderer");
     let opts = GpuOptions::new(primary, CameraTr::Steps, &r.settings);
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
@@ -121,7 +122,8 @@ fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what:
         let mut pairs = 0;
         let scatter = |x, cos| media.in_scatter(x, cos);
         let tr = |tt| ppb::transport::transmittance::camera_tr(&p.chords, &p.tr, tt);
-        map.nested_radiance(&ray, (0.0, p.t_surf), scatter, tr, &mut pairs);
+        let kernel = BeamKernel::Line;
+        map.nested_radiance(&ray, (0.0, p.t_surf), kernel, scatter, tr, &mut pairs);
         let secondary = t
             .camera
             .secondary
@@ -212,6 +214,7 @@ fn auto_primary_picks_by_measurement() {
     let file = load(&data(scene)).expect("scene loads");
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths) = (96, 96, 20_000);
+    s.beam_kernel = Some(BeamKernel::Line);
     let tracer = || Tracer::new(&file.scene, s.clone()).expect("renderer");
     let mut gpu =
         Session::open(tracer(), Some(g), PrimaryPath::Auto, CameraTr::Steps).expect("gpu session");
@@ -305,6 +308,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let file = load(&data("scenes/conformance/cloud-hg/scene.toml")).expect("scene loads");
     let mut s = file.settings.clone();
     s.method = ppb::settings::Method::Ppb;
+    s.beam_kernel = Some(BeamKernel::Line);
     let r = Tracer::new(&file.scene, s).expect("renderer");
     let t = r.trace(&r.plan().pass(1), None, MapNeed::GPU_EVERY_PASS);
     let (cpu, _) = r.beam_image(&t);
@@ -329,6 +333,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths) = (128, 128, 100_000);
     s.method = ppb::settings::Method::Ppb;
+    s.beam_kernel = Some(BeamKernel::Line);
     let r = Tracer::new(&file.scene, s).expect("renderer");
     let t = r.trace(&r.plan().pass(1), None, MapNeed::GPU_EVERY_PASS);
     let (cpu, _) = r.beam_image(&t);

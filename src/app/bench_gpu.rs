@@ -131,7 +131,9 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
     let mut adapter = String::new();
     for scene in &args.bench.scenes {
         let file = args.bench.load(scene)?;
-        let s = args.bench.settings(&file)?;
+        let mut s = args.bench.settings(&file)?;
+        // The GPU's shader has eq. 2's line kernel only: the CPU side must match it.
+        s.beam_kernel = Some(ppb::settings::BeamKernel::Line);
         let tracer = Tracer::new(&file.scene, s.clone())?;
         let Some(gpu) = super::open_device(args.device, true)? else {
             anyhow::bail!("no GPU adapter to measure (try --device gpu)");

@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 use super::beams::{BeamMap, MapNeed};
+use super::eq2::BeamKernel;
 use super::splat::splat;
 use super::{Estimator, TracedPass, View};
 use crate::core::simd;
@@ -58,19 +59,23 @@ pub fn beam_image(view: View, t: &TracedPass) -> (Vec<Rgb>, u64) {
 
 /// [`beam_image`] with each pixel's nested half-radius difference.
 pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
-    let View { camera, media } = view;
+    let View {
+        camera,
+        media,
+        kernel,
+    } = view;
     let (pass, beams, radius) = (&t.camera, &t.beams, t.beam_radius);
     let pixels = pass.primaries.len();
     if media.is_empty() || beams.is_empty() {
         return (vec![Nested::default(); pixels], 0);
     }
     let isa = simd::isa();
-    let (mut img, mut evals) = splat(camera, &pass.primaries, beams, radius, media, isa);
+    let (mut img, mut evals) = splat(camera, &pass.primaries, beams, (radius, kernel), media, isa);
     if let Some(map) = &t.beam_map {
         let per_segment: Vec<(Nested, u64)> = pass
             .secondary
             .par_iter()
-            .map(|s| secondary_radiance(media, map, s))
+            .map(|s| secondary_radiance(media, map, kernel, s))
             .collect();
         for (s, (l, e)) in pass.secondary.iter().zip(per_segment) {
             img[s.pixel as usize] += l;
@@ -81,14 +86,19 @@ pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
 }
 
 /// beta times the beams' in-scattered radiance along one secondary segment.
-fn secondary_radiance(media: &Media, map: &BeamMap, s: &Secondary) -> (Nested, u64) {
+fn secondary_radiance(
+    media: &Media,
+    map: &BeamMap,
+    kernel: BeamKernel,
+    s: &Secondary,
+) -> (Nested, u64) {
     let ray = &s.ray;
     let mut evals = 0;
     let mut l = Nested::default();
     for span in media.spans(ray, s.tr.seen_until(s.t_surf)) {
         let tr = |t| camera_tr(&s.chords, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
-        l += map.nested_radiance(ray, span, scatter, tr, &mut evals);
+        l += map.nested_radiance(ray, span, kernel, scatter, tr, &mut evals);
     }
     (s.beta * l, evals)
 }

@@ -15,8 +15,10 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
+use super::tube;
 use crate::core::Ray;
 use crate::core::Rgb;
+pub use crate::settings::BeamKernel;
 
 /// The stretch [s0, s1) of one beam (whose data it copies, so the map owns everything a
 /// query reads). `origin` is the beam's origin: s is measured from it.
@@ -54,6 +56,8 @@ pub struct Crossing {
     pub dist2: f32,
     /// sin^2 of the angle between them.
     pub sin2: f32,
+    /// cos of that angle, w . psi, signed: the beam parameter's rate along the ray.
+    pub cos: f32,
 }
 
 /// Where the lines o + t w and y + s psi (unit directions) come closest; None when they
@@ -82,7 +86,13 @@ pub fn closest_xyz(o: [f32; 3], w: [f32; 3], y: [f32; 3], psi: [f32; 3]) -> Cros
     let s = (e - b * d) / sin2;
     let v = [0, 1, 2].map(|i| w0[i] + w[i] * t - psi[i] * s);
     let dist2 = dot(v, v);
-    Crossing { t, s, dist2, sin2 }
+    Crossing {
+        t,
+        s,
+        dist2,
+        sin2,
+        cos: b,
+    }
 }
 
 /// Eq. 2 for the camera segment [t0, t1) of `ray` and the beam stretch `piece`
@@ -131,6 +141,43 @@ pub fn nested_term(
 pub fn counts(c: &Crossing, (t0, t1): (f32, f32), (s0, s1): (f32, f32), r: f32) -> bool {
     // `&`, not `&&`: one hard-to-predict branch for the pair instead of five.
     (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (s0 <= c.s) & (c.s < s1)
+}
+
+/// Whether the pair of the ray o + t w over the segment `span` and the piece `p`, whose
+/// lines' crossing is `c`, counts under `kernel`: eq. 2's edge rule ([`counts`]) or the
+/// tube's chord ([`tube::counts`]).
+#[inline(always)]
+pub fn pair_counts(
+    kernel: BeamKernel,
+    (o, w): (Vec3, Vec3),
+    p: &BeamPiece,
+    c: &Crossing,
+    span: (f32, f32),
+    r: f32,
+) -> bool {
+    let ends = (p.s0, p.s1);
+    match kernel {
+        BeamKernel::Line => counts(c, span, ends, r),
+        BeamKernel::Tube => tube::counts((o.into(), w.into()), (p.origin, p.dir), span, ends, r),
+    }
+}
+
+/// The term of a pair that [`pair_counts`] under `kernel`, and whether it also counts at
+/// r/2 (where the kernel is [`BeamKernel::inner_ratio`] times as high).
+#[inline(always)]
+pub fn pair_term(
+    kernel: BeamKernel,
+    ray: &Ray,
+    (piece, c): (&BeamPiece, &Crossing),
+    span: (f32, f32),
+    r: f32,
+    in_scatter: impl Fn(Vec3, f32) -> Rgb,
+    tr: impl Fn(f32) -> f32,
+) -> (Rgb, bool) {
+    match kernel {
+        BeamKernel::Line => counted_term(ray, c, piece, r, in_scatter, tr),
+        BeamKernel::Tube => tube::counted_term(ray, piece, span, r, in_scatter, tr),
+    }
 }
 
 /// [`nested_term`] of a crossing that counts: the part past the edge rule, which the wide

@@ -9,7 +9,8 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::eq2::{closest_xyz, counts, crossing, BeamPiece, Crossing};
+use super::eq2::{closest_xyz, counts, crossing, pair_counts, BeamKernel, BeamPiece, Crossing};
+use super::tube;
 use crate::core::simd::Isa;
 use crate::core::Ray;
 
@@ -96,16 +97,54 @@ impl<const N: usize> Pairs<N> {
     }
 
     /// Lane k's pair: whether it counts ([`crate::estimate::eq2::crossing`]'s test for
-    /// parallel lines, then [`counts`]), and its crossing.
+    /// parallel lines, then the kernel's rule `counts`), and its crossing.
     #[inline(always)]
-    fn test(&self, k: usize, r: f32) -> (bool, Crossing) {
+    fn test(&self, k: usize, r: f32, counts: &impl CountRule) -> (bool, Crossing) {
         let at = |v: &[[f32; N]; 3]| [v[0][k], v[1][k], v[2][k]];
-        let c = closest_xyz(at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
+        let lines = (at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
+        let c = closest_xyz(lines.0, lines.1, lines.2, lines.3);
         let (span, ends) = ((self.t[0][k], self.t[1][k]), (self.s[0][k], self.s[1][k]));
+        let r = r * self.scale[k];
         (
-            (c.sin2 >= 1e-10) & counts(&c, span, ends, r * self.scale[k]),
+            (c.sin2 >= 1e-10) & counts.counts(lines, &c, span, ends, r),
             c,
         )
+    }
+}
+
+/// A kernel's rule for which pairs count, as a type: each rule's lane loop is compiled on
+/// its own (a rule chosen inside the loop kept LLVM from vectorising it).
+trait CountRule {
+    /// The pair of the lines (o, w, y, psi), whose crossing is `c`, over `span` and `ends`.
+    fn counts(
+        &self,
+        lines: Lines,
+        c: &Crossing,
+        span: (f32, f32),
+        ends: (f32, f32),
+        r: f32,
+    ) -> bool;
+}
+
+/// A pair's ray o + t w and piece line y + s psi, as plain components.
+type Lines = ([f32; 3], [f32; 3], [f32; 3], [f32; 3]);
+
+/// Eq. 2's edge rule.
+struct LineRule;
+/// The tube's chord.
+struct TubeRule;
+
+impl CountRule for LineRule {
+    #[inline(always)]
+    fn counts(&self, _: Lines, c: &Crossing, span: (f32, f32), ends: (f32, f32), r: f32) -> bool {
+        counts(c, span, ends, r)
+    }
+}
+
+impl CountRule for TubeRule {
+    #[inline(always)]
+    fn counts(&self, l: Lines, _: &Crossing, span: (f32, f32), ends: (f32, f32), r: f32) -> bool {
+        tube::counts((l.0, l.1), (l.2, l.3), span, ends, r)
     }
 }
 
@@ -116,12 +155,21 @@ struct Lanes<const N: usize> {
     s: [f32; N],
     dist2: [f32; N],
     sin2: [f32; N],
+    cos: [f32; N],
 }
 
 impl<const N: usize> Lanes<N> {
-    /// Tests the pairs that `fill` writes.
+    /// Tests the pairs that `fill` writes by `kernel`'s rule.
     #[inline(always)]
-    fn test(fill: impl FnOnce(&mut Pairs<N>), r: f32) -> Lanes<N> {
+    fn test(fill: impl FnOnce(&mut Pairs<N>), r: f32, kernel: BeamKernel) -> Lanes<N> {
+        match kernel {
+            BeamKernel::Line => Self::test_by(fill, r, &LineRule),
+            BeamKernel::Tube => Self::test_by(fill, r, &TubeRule),
+        }
+    }
+
+    #[inline(always)]
+    fn test_by(fill: impl FnOnce(&mut Pairs<N>), r: f32, rule: &impl CountRule) -> Lanes<N> {
         let mut pairs = Pairs::zero();
         fill(&mut pairs);
         let z = [0.0; N];
@@ -131,6 +179,7 @@ impl<const N: usize> Lanes<N> {
             s: z,
             dist2: z,
             sin2: z,
+            cos: z,
         };
         // The mask is built in a second loop: folded into this one, it kept LLVM from
         // vectorising the lanes.
@@ -138,8 +187,9 @@ impl<const N: usize> Lanes<N> {
         #[allow(clippy::needless_range_loop)] // one index over six arrays
         for k in 0..N {
             let c;
-            (ok[k], c) = pairs.test(k, r);
-            (out.t[k], out.s[k], out.dist2[k], out.sin2[k]) = (c.t, c.s, c.dist2, c.sin2);
+            (ok[k], c) = pairs.test(k, r, rule);
+            (out.t[k], out.s[k], out.dist2[k]) = (c.t, c.s, c.dist2);
+            (out.sin2[k], out.cos[k]) = (c.sin2, c.cos);
         }
         for (k, ok) in ok.into_iter().enumerate() {
             out.mask |= (ok as u32) << k;
@@ -158,17 +208,25 @@ impl<const N: usize> Lanes<N> {
                 s: self.s[k],
                 dist2: self.dist2[k],
                 sin2: self.sin2[k],
+                cos: self.cos[k],
             };
             visit(k, &c);
         }
     }
 }
 
-/// One pair the scalar way: eq2's [`crossing`] and [`counts`] themselves, at r times the
-/// piece's scale.
-fn scalar(o: Vec3, w: Vec3, span: (f32, f32), p: &BeamPiece, r: f32) -> Option<Crossing> {
+/// One pair the scalar way: eq2's [`crossing`] and [`pair_counts`] themselves, at r times
+/// the piece's scale.
+fn scalar(
+    o: Vec3,
+    w: Vec3,
+    span: (f32, f32),
+    p: &BeamPiece,
+    r: f32,
+    kernel: BeamKernel,
+) -> Option<Crossing> {
     let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
-    counts(&c, span, (p.s0, p.s1), r * p.scale).then_some(c)
+    pair_counts(kernel, (o, w), p, &c, span, r * p.scale).then_some(c)
 }
 
 /// The lanes that a step of `n` lanes keeps when `left` pairs are left.
@@ -205,11 +263,17 @@ pub struct Fixed<'a> {
     piece: &'a BeamPiece,
     /// The pass's beam radius: a pair counts within it times its piece's scale.
     r: f32,
+    kernel: BeamKernel,
 }
 
 impl<'a> Fixed<'a> {
-    pub fn new(o: Vec3, piece: &'a BeamPiece, r: f32) -> Fixed<'a> {
-        Fixed { o, piece, r }
+    pub fn new(o: Vec3, piece: &'a BeamPiece, r: f32, kernel: BeamKernel) -> Fixed<'a> {
+        Fixed {
+            o,
+            piece,
+            r,
+            kernel,
+        }
     }
 
     /// Calls `visit(i, crossing)` for every ray i in `range` whose pair with the piece
@@ -226,13 +290,15 @@ impl<'a> Fixed<'a> {
         let done = wide_steps(isa, len, |at, n| {
             let i = start + at;
             let v = |k: usize, c: &Crossing| visit(i + k, c);
+            let row = Row(self, rays, i);
             // SAFETY: `wide_steps` takes n = 16 only for AVX-512 and n = 8 for AVX2 or
             // AVX-512, which `Isa` chooses only where the CPU runs them (with AVX2).
-            unsafe { run(n, &Row(self, rays, i), self.r, keep(len - at), v) }
+            unsafe { run(n, &row, (self.r, self.kernel), keep(len - at), v) }
         });
         for i in start + done..range.end {
             let w = Vec3::new(rays.x[i], rays.y[i], rays.z[i]);
-            if let Some(c) = scalar(self.o, w, (0.0, rays.t1[i]), self.piece, self.r) {
+            let span = (0.0, rays.t1[i]);
+            if let Some(c) = scalar(self.o, w, span, self.piece, self.r, self.kernel) {
                 visit(i, &c);
             }
         }
@@ -291,6 +357,7 @@ pub struct Segment<'a, V: FnMut(&BeamPiece, &Crossing)> {
     ray: &'a Ray,
     span: (f32, f32),
     r: f32,
+    kernel: BeamKernel,
     batch: [&'a BeamPiece; PAD],
     len: usize,
     visit: V,
@@ -302,7 +369,7 @@ impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
         isa: Isa,
         ray: &'a Ray,
         span: (f32, f32),
-        r: f32,
+        (r, kernel): (f32, BeamKernel),
         first: &'a BeamPiece,
         visit: V,
     ) -> Self {
@@ -311,6 +378,7 @@ impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
             ray,
             span,
             r,
+            kernel,
             batch: [first; PAD],
             len: 0,
             visit,
@@ -336,18 +404,19 @@ impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
     }
 
     fn flush(&mut self) {
-        let (len, batch, r) = (self.len, self.batch, self.r);
+        let (len, batch, r, kernel) = (self.len, self.batch, self.r, self.kernel);
         let (o, w, span) = (self.ray.o, self.ray.d, self.span);
         self.len = 0;
         let visit = &mut self.visit;
         let done = wide_steps(self.isa, len, |at, n| {
             let pieces = &batch[at..];
             let v = |k: usize, c: &Crossing| visit(batch[at + k], c);
+            let fill = Batch { o, w, span, pieces };
             // SAFETY: as in `Fixed::for_each_counted`.
-            unsafe { run(n, &Batch { o, w, span, pieces }, r, keep(len - at), v) }
+            unsafe { run(n, &fill, (r, kernel), keep(len - at), v) }
         });
         for &piece in &batch[done..len] {
-            if let Some(c) = scalar(o, w, span, piece, r) {
+            if let Some(c) = scalar(o, w, span, piece, r, kernel) {
                 visit(piece, &c);
             }
         }
@@ -360,34 +429,40 @@ impl<'a, V: FnMut(&BeamPiece, &Crossing)> Segment<'a, V> {
 /// # Safety
 /// n = 8 needs AVX2, n = 16 AVX-512F.
 #[inline(always)]
-unsafe fn run(n: usize, fill: &impl Fill, r: f32, keep: u32, visit: impl FnMut(usize, &Crossing)) {
+unsafe fn run(
+    n: usize,
+    fill: &impl Fill,
+    (r, kernel): (f32, BeamKernel),
+    keep: u32,
+    visit: impl FnMut(usize, &Crossing),
+) {
     #[cfg(target_arch = "x86_64")]
     {
         if n == 16 {
             // SAFETY: the caller's.
-            unsafe { avx512(fill, r) }.visit(keep, visit)
+            unsafe { avx512(fill, r, kernel) }.visit(keep, visit)
         } else {
             // SAFETY: the caller's.
-            unsafe { avx2(fill, r) }.visit(keep, visit)
+            unsafe { avx2(fill, r, kernel) }.visit(keep, visit)
         }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (n, fill, r, keep, visit);
+        let _ = (n, fill, r, kernel, keep, visit);
         unreachable!("wide steps only on x86_64")
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn avx2(fill: &impl Fill, r: f32) -> Lanes<8> {
-    Lanes::test(|p| fill.fill(p), r)
+fn avx2(fill: &impl Fill, r: f32, kernel: BeamKernel) -> Lanes<8> {
+    Lanes::test(|p| fill.fill(p), r, kernel)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn avx512(fill: &impl Fill, r: f32) -> Lanes<16> {
-    Lanes::test(|p| fill.fill(p), r)
+fn avx512(fill: &impl Fill, r: f32, kernel: BeamKernel) -> Lanes<16> {
+    Lanes::test(|p| fill.fill(p), r, kernel)
 }
 
 #[cfg(test)]
@@ -430,18 +505,23 @@ mod tests {
     }
 
     /// Pairs that count, as (index, crossing bits).
-    type Found = Vec<(usize, [u32; 4])>;
+    type Found = Vec<(usize, [u32; 5])>;
 
-    fn bits(i: usize, c: &Crossing) -> (usize, [u32; 4]) {
-        (i, [c.t, c.s, c.dist2, c.sin2].map(f32::to_bits))
+    fn bits(i: usize, c: &Crossing) -> (usize, [u32; 5]) {
+        (i, [c.t, c.s, c.dist2, c.sin2, c.cos].map(f32::to_bits))
     }
 
     /// Every instruction set this CPU runs finds the pairs of eq2's scalar [`crossing`] and
-    /// [`counts`] ([`scalar`]), with the
-    /// same crossings bit for bit: the splat's rows, over runs that start and end off the
-    /// lane grid, and the gather's batches, over queries of any length.
+    /// each kernel's rule ([`scalar`]), with the same crossings bit for bit: the splat's
+    /// rows, over runs that start and end off the lane grid, and the gather's batches, over
+    /// queries of any length.
     #[test]
     fn every_isa_finds_the_scalar_pairs_bit_for_bit() {
+        every_isa_finds_the_scalar_pairs(BeamKernel::Line);
+        every_isa_finds_the_scalar_pairs(BeamKernel::Tube);
+    }
+
+    fn every_isa_finds_the_scalar_pairs(kernel: BeamKernel) {
         let mut rng = Rng::new(11, 0);
         let (mut counted, mut pairs) = (0, 0);
         for round in 0..400 {
@@ -451,7 +531,10 @@ mod tests {
             let dir = |i: usize| Vec3::new(rays.x[i], rays.y[i], rays.z[i]);
             let reference: Found = range
                 .clone()
-                .filter_map(|i| Some(bits(i, &scalar(o, dir(i), (0.0, rays.t1[i]), &piece, r)?)))
+                .filter_map(|i| {
+                    let c = scalar(o, dir(i), (0.0, rays.t1[i]), &piece, r, kernel)?;
+                    Some(bits(i, &c))
+                })
                 .collect();
             // The gather: ray 0 against `m` pieces that pass within about r of it, near
             // the ends of its span and of theirs.
@@ -475,18 +558,18 @@ mod tests {
             let gathered: Found = others
                 .iter()
                 .enumerate()
-                .filter_map(|(i, p)| Some(bits(i, &scalar(o, dir(0), span, p, r)?)))
+                .filter_map(|(i, p)| Some(bits(i, &scalar(o, dir(0), span, p, r, kernel)?)))
                 .collect();
             for isa in Isa::ALL.into_iter().filter(|i| i.supported()) {
                 let mut got = Found::new();
-                let fixed = Fixed::new(o, &piece, r);
+                let fixed = Fixed::new(o, &piece, r, kernel);
                 fixed.for_each_counted(isa, &rays, range.clone(), |i, c| got.push(bits(i, c)));
                 assert_eq!(got, reference, "row, round {round}, {isa:?}");
                 let mut got = Found::new();
                 let ray = Ray::new(o, dir(0));
                 let index = |p: &BeamPiece| others.iter().position(|q| std::ptr::eq(p, q));
                 let visit = |p: &BeamPiece, c: &Crossing| got.push(bits(index(p).unwrap(), c));
-                let mut segment = Segment::new(isa, &ray, span, r, &piece, visit);
+                let mut segment = Segment::new(isa, &ray, span, (r, kernel), &piece, visit);
                 others.iter().for_each(|p| segment.push(p));
                 segment.finish();
                 assert_eq!(got, gathered, "gather, round {round}, {isa:?}");
@@ -495,10 +578,10 @@ mod tests {
             pairs += range.len() + m;
         }
         // The cases exercise the rule: many pairs count, more do not.
-        eprintln!("{counted} of {pairs} pairs counted");
+        eprintln!("{kernel:?}: {counted} of {pairs} pairs counted");
         assert!(
             counted > 2000 && 2 * counted < pairs,
-            "{counted} of {pairs} counted"
+            "{kernel:?}: {counted} of {pairs} counted"
         );
     }
 }

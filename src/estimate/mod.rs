@@ -9,6 +9,7 @@ pub mod lanes;
 pub mod photons;
 pub mod radius;
 pub mod splat;
+pub mod tube;
 
 use std::time::Instant;
 
@@ -18,6 +19,7 @@ use crate::media::Media;
 use crate::transport::camera::{CameraPass, Pinhole};
 use crate::transport::{Beam, Counters};
 use beams::{BeamMap, MapNeed};
+use eq2::BeamKernel;
 
 /// Wall-clock seconds of one pass's stages.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -62,6 +64,8 @@ pub struct TracedPass {
 pub struct View<'a> {
     pub camera: &'a Pinhole,
     pub media: &'a Media,
+    /// The CPU's beam kernel.
+    pub kernel: BeamKernel,
 }
 
 /// Where the beam estimate of traced passes runs. Both implementations compute the same

@@ -12,7 +12,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::eq2::{counted_term, BeamPiece, Crossing};
+use super::eq2::{pair_term, BeamKernel, BeamPiece, Crossing};
 use super::lanes::{Fixed, Rays};
 use crate::core::simd::Isa;
 use crate::core::Nested;
@@ -30,15 +30,15 @@ const RUN: usize = 16;
 /// Beams closer than this to the camera plane are clipped (m).
 const NEAR: f32 = 1e-3;
 
-/// Accumulates eq. 2 for all beams along all primary segments; returns per-pixel radiance
-/// (with its nested half-radius difference) and the number of kernel evaluations that
-/// contributed. `isa` tests a row's pixels for a beam that many at a time; every choice
-/// gives the same bits.
+/// Accumulates `kernel`'s term for all beams along all primary segments; returns per-pixel
+/// radiance (with its nested half-radius difference) and the number of kernel evaluations
+/// that contributed. `isa` tests a row's pixels for a beam that many at a time; every
+/// choice gives the same bits.
 pub fn splat(
     cam: &Pinhole,
     primaries: &[Primary],
     beams: &[Beam],
-    radius: f32,
+    (radius, kernel): (f32, BeamKernel),
     media: &Media,
     isa: Isa,
 ) -> (Vec<Nested>, u64) {
@@ -52,7 +52,10 @@ pub fn splat(
         .map(|b| {
             let r = radius * b.scale;
             let line = Line::project(cam, b, r, reach)?;
-            Some((line, nearest_crossing(origin, &BeamPiece::whole(b), r)))
+            Some((
+                line,
+                nearest_crossing(origin, &BeamPiece::whole(b), r, kernel),
+            ))
         })
         .collect();
     let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
@@ -87,7 +90,7 @@ pub fn splat(
                     continue;
                 };
                 let piece = BeamPiece::whole(&beams[bi as usize]);
-                let fixed = Fixed::new(origin, &piece, radius);
+                let fixed = Fixed::new(origin, &piece, radius, kernel);
                 let own = radius * piece.scale;
                 for y in row0..row0 + rows {
                     let Some((x0, x1)) = line.row_span(y as f32, w) else {
@@ -98,8 +101,10 @@ pub fn splat(
                     }
                     let pixels = y * w + x0..y * w + x1 + 1;
                     fixed.for_each_counted(isa, &rays, pixels, |i, c| {
-                        let l = contribution(origin, &primaries[i], &piece, c, own, media);
-                        img[i - row0 * w].add(l);
+                        let span = (0.0, rays.t1[i]);
+                        let pair = (&piece, c, span, own, kernel);
+                        let l = contribution(origin, &primaries[i], pair, media);
+                        img[i - row0 * w].add_in(l, kernel.inner_ratio());
                         evals += 1;
                     });
                 }
@@ -143,31 +148,38 @@ impl Seen {
     }
 }
 
-/// A lower bound on the camera distance t of any crossing of `piece` that counts at
-/// radius `r`: at a crossing the beam point p and the camera ray's point at t are less
-/// than r apart along a line square to the ray, so |p - o|^2 = t^2 + d^2 with d < r, and
-/// t > sqrt(D^2 - r^2) for D the piece's nearest distance to the origin `o`. Lowered by a
-/// relative 1e-4 for the rounding of t in [`closest_xyz`](super::eq2::closest_xyz).
-fn nearest_crossing(o: Vec3, piece: &BeamPiece, r: f32) -> f32 {
+/// A lower bound on the camera distance t at which any pair of `piece` that counts at
+/// radius `r` is evaluated, D being the piece's nearest distance to the origin `o`.
+/// - Line: at a crossing the beam point p and the camera ray's point at t are less than r
+///   apart along a line square to the ray, so |p - o|^2 = t^2 + d^2 with d < r, and
+///   t > sqrt(D^2 - r^2).
+/// - Tube: every point of a chord is within r of the piece, so t > D - r.
+///
+/// Lowered by a relative 1e-4 for the rounding of t in
+/// [`closest_xyz`](super::eq2::closest_xyz) and of the chord's ends.
+fn nearest_crossing(o: Vec3, piece: &BeamPiece, r: f32, kernel: BeamKernel) -> f32 {
     let (a, d) = (Vec3::from(piece.origin), Vec3::from(piece.dir));
     let s = (o - a).dot(d).clamp(piece.s0, piece.s1);
     let dist2 = (a + d * s - o).length_squared();
-    (dist2 - r * r).max(0.0).sqrt() * (1.0 - 1e-4) - 1e-4 * r
+    let t = match kernel {
+        BeamKernel::Line => (dist2 - r * r).max(0.0).sqrt(),
+        BeamKernel::Tube => (dist2.sqrt() - r).max(0.0),
+    };
+    t * (1.0 - 1e-4) - 1e-4 * r
 }
 
-/// Eq. 2 for one beam and one primary segment [0, t_surf) whose crossing `c` counts.
+/// The kernel's term for one beam and one primary segment over `span` (its seen part of
+/// [0, t_surf)) whose crossing `c` counts at radius r.
 #[inline(always)]
 fn contribution(
     o: Vec3,
     p: &Primary,
-    beam: &BeamPiece,
-    c: &Crossing,
-    r: f32,
+    (beam, c, span, r, kernel): (&BeamPiece, &Crossing, (f32, f32), f32, BeamKernel),
     media: &Media,
 ) -> (Rgb, bool) {
     let ray = Ray::new(o, p.dir);
     let scatter = |x, cos| media.in_scatter(x, cos);
-    counted_term(&ray, c, beam, r, scatter, |t| {
+    pair_term(kernel, &ray, (beam, c), span, r, scatter, |t| {
         camera_tr(&p.chords, &p.tr, t)
     })
 }
@@ -307,16 +319,18 @@ impl Line {
 mod tests {
     use super::*;
     use crate::estimate::eq2::{counts, crossing};
+    use crate::estimate::tube;
     use crate::sampling::{orthonormal_basis, uniform_sphere, Rng};
 
-    /// No pair that counts crosses nearer than [`nearest_crossing`]. 400,000 rays pass
+    /// No pair that counts crosses nearer than [`nearest_crossing`] (line kernel), and no
+    /// tube chord starts nearer than the tube's bound. 400,000 rays pass
     /// a random beam's nearest point to the camera at a random distance below the radius
     /// (where the bound is nearly attained), half of them within 1e-5 to 1e-2 radians of
     /// the beam's direction (where t's rounding is largest), at radii from 1e-3 to 1.
     #[test]
     fn no_counted_crossing_is_nearer_than_the_bound() {
         let mut rng = Rng::new(21, 0);
-        let (mut counted, mut tight) = (0, 0);
+        let (mut counted, mut tight, mut tube_tight) = (0, 0, 0);
         for k in 0..400_000 {
             let o = (uniform_sphere(rng.vec2()) * 3.0).round();
             let r = 10f32.powf(-3.0 * rng.f32());
@@ -346,9 +360,16 @@ mod tests {
             let Some(c) = crossing(o, w, a, d) else {
                 continue;
             };
-            if counts(&c, (0.0, f32::INFINITY), (0.0, length), r) {
+            let (span, ends) = ((0.0, f32::INFINITY), (0.0, length));
+            if tube::counts((o.into(), w.into()), (a.into(), d.into()), span, ends, r) {
+                let lo = tube::chord(o.into(), w.into(), a.into(), d.into(), span, ends, r).lo;
+                let bound = nearest_crossing(o, &piece, r, BeamKernel::Tube);
+                assert!(lo >= bound, "chord from {lo} < bound {bound} (r {r})");
+                tube_tight += (lo < bound + 0.01 * r) as u32;
+            }
+            if counts(&c, span, ends, r) {
                 counted += 1;
-                let bound = nearest_crossing(o, &piece, r);
+                let bound = nearest_crossing(o, &piece, r, BeamKernel::Line);
                 assert!(
                     c.t >= bound,
                     "t {} < bound {bound} (r {r}, sin2 {})",
@@ -360,6 +381,10 @@ mod tests {
         }
         assert!(counted > 100_000, "{counted} pairs counted");
         assert!(tight > 1_000, "{tight} pairs within r / 100 of the bound");
+        assert!(
+            tube_tight > 1_000,
+            "{tube_tight} chords within r / 100 of the bound"
+        );
     }
 
     /// A row span is hidden only where every run it touches sees no farther than the bound.

@@ -39,6 +39,10 @@ pub(super) fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettin
         free_path: ck.word("render.free_path", r.free_path.as_deref(), d.free_path)?,
         method: ck.word("render.method", r.method.as_deref(), d.method)?,
         bandwidth: ck.word("render.bandwidth", r.bandwidth.as_deref(), d.bandwidth)?,
+        beam_kernel: match r.beam_kernel.as_deref() {
+            None | Some("auto") => None,
+            w => Some(ck.word("render.beam_kernel", w, BeamKernel::Tube)?),
+        },
         ..d
     };
     s.validate()

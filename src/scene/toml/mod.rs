@@ -18,7 +18,7 @@ use crate::core::frames::{self, at_frame};
 use crate::error::{Error, Result};
 use crate::media::procedural::{self, NoiseParams, Preset, DEFAULT_RESOLUTION};
 use crate::media::{GridMedium, MediumDesc};
-use crate::settings::{Radius, RenderSettings};
+use crate::settings::{BeamKernel, Radius, RenderSettings};
 use check::{line_of, Check};
 use fields::*;
 use glam::DAffine3;

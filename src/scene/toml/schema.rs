@@ -45,6 +45,7 @@ pub(super) struct FileRender {
     pub(super) nee_samples: Option<usize>,
     pub(super) transparent: Option<bool>,
     pub(super) bandwidth: Option<String>,
+    pub(super) beam_kernel: Option<String>,
 }
 
 #[derive(Deserialize)]
