@@ -104,8 +104,9 @@ pub struct Overrides {
     pub bandwidth: Option<ppb::settings::Bandwidth>,
     /// How a beam is blurred across its direction (overrides [render].beam_kernel): tube
     /// (a 2D disk, gathered over each camera ray's chord through it: no 1/sin(theta)
-    /// weight, far less noise where beams point at the camera; the default on the CPU) or
-    /// line (the paper's eq. 2; the default with --method ppb, and the GPU's only kernel).
+    /// weight, far less noise where a forward-scattering medium sends beams at the camera;
+    /// the CPU's default where a phase function has |g| >= 0.3) or line (the paper's
+    /// eq. 2; the default otherwise, always with --method ppb, and the GPU's only kernel).
     #[arg(long, value_enum)]
     pub beam_kernel: Option<ppb::settings::BeamKernel>,
 }

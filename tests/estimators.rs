@@ -194,14 +194,13 @@ fn splat_finds_every_pair_the_gather_finds() {
 }
 
 /// With the tube kernel the splat evaluates exactly the pairs whose chord counts: every
-/// pixel's seen segment against every beam, by brute force (eq2's parallel test, then
-/// `tube::counts` at the beam's own radius), on cloud-hg and smoke-grid, pass 1. A row
+/// pixel's seen segment against every beam, by brute force (`eq2::pair`, the scalar rule,
+/// at the beam's own radius), on cloud-hg and smoke-grid, pass 1. A row
 /// span too narrow for a pair near a beam's end plane would lose its evaluation here.
 #[test]
 fn splat_finds_every_tube_pair() {
     use ppb::estimate::beams::MapNeed;
-    use ppb::estimate::eq2::{crossing, BeamKernel};
-    use ppb::estimate::tube;
+    use ppb::estimate::eq2::{pair, BeamKernel};
     use rayon::prelude::*;
     for scene in ["cloud-hg", "smoke-grid"] {
         let (file, s) = small_public(scene);
@@ -225,15 +224,9 @@ fn splat_finds_every_tube_pair() {
                 t.beams
                     .iter()
                     .filter(|b| {
-                        let (y, psi) = (Vec3::from(b.origin), Vec3::from(b.dir));
-                        crossing(o, p.dir, y, psi).is_some()
-                            && tube::counts(
-                                (o.into(), p.dir.into()),
-                                (b.origin, b.dir),
-                                span,
-                                (0.0, b.length),
-                                t.beam_radius * b.scale,
-                            )
+                        let lines = (o.into(), p.dir.into(), b.origin, b.dir);
+                        let r = t.beam_radius * b.scale;
+                        pair(BeamKernel::Tube, lines, span, (0.0, b.length), r).0
                     })
                     .count() as u64
             })

@@ -243,7 +243,7 @@ impl BeamMap {
         let visit = |piece: &BeamPiece, c: &Crossing| {
             *evaluations += 1;
             let own = r * piece.scale;
-            let term = pair_term(kernel, ray, (piece, c), (t0, t1), own, &in_scatter, &tr);
+            let term = pair_term(kernel, ray, (piece, c), own, &in_scatter, &tr);
             sum.add_in(term, kernel.inner_ratio());
         };
         let first = &self.pieces[0];
@@ -363,21 +363,17 @@ mod tests {
                     let p = BeamPiece::whole(b);
                     let own = r * b.scale;
                     let ch = crate::estimate::tube::piece_chord(&ray, &p, span, own);
-                    let parallel = crossing(ray.o, ray.d, Vec3::from(p.origin), Vec3::from(p.dir));
-                    if parallel.is_none() || !ch.counts(own) {
+                    let Some(mut c) =
+                        crossing(ray.o, ray.d, Vec3::from(p.origin), Vec3::from(p.dir))
+                    else {
+                        return 0.0;
+                    };
+                    if !ch.counts(own) {
                         return 0.0;
                     }
-                    pair_term(
-                        BeamKernel::Tube,
-                        &ray,
-                        (&p, &parallel.unwrap()),
-                        span,
-                        own,
-                        one,
-                        |_| 1.0,
-                    )
-                    .0
-                    .x as f64
+                    (c.lo, c.hi) = (ch.lo, ch.hi);
+                    let term = pair_term(BeamKernel::Tube, &ray, (&p, &c), own, one, |_| 1.0);
+                    term.0.x as f64
                 })
                 .sum();
             for map in &maps {

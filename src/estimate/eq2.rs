@@ -56,8 +56,10 @@ pub struct Crossing {
     pub dist2: f32,
     /// sin^2 of the angle between them.
     pub sin2: f32,
-    /// cos of that angle, w . psi, signed: the beam parameter's rate along the ray.
-    pub cos: f32,
+    /// The tube kernel's chord [lo, hi) on the ray ([`tube::pair`], which leaves t, s
+    /// and dist2 0); eq. 2 leaves it 0.
+    pub lo: f32,
+    pub hi: f32,
 }
 
 /// Where the lines o + t w and y + s psi (unit directions) come closest; None when they
@@ -91,7 +93,8 @@ pub fn closest_xyz(o: [f32; 3], w: [f32; 3], y: [f32; 3], psi: [f32; 3]) -> Cros
         s,
         dist2,
         sin2,
-        cos: b,
+        lo: 0.0,
+        hi: 0.0,
     }
 }
 
@@ -143,40 +146,45 @@ pub fn counts(c: &Crossing, (t0, t1): (f32, f32), (s0, s1): (f32, f32), r: f32) 
     (c.dist2 < r * r) & (t0 <= c.t) & (c.t < t1) & (s0 <= c.s) & (c.s < s1)
 }
 
-/// Whether the pair of the ray o + t w over the segment `span` and the piece `p`, whose
-/// lines' crossing is `c`, counts under `kernel`: eq. 2's edge rule ([`counts`]) or the
-/// tube's chord ([`tube::counts`]).
+/// A pair's ray o + t w and piece line y + s psi, as plain components (unit w and psi).
+pub type Lines = ([f32; 3], [f32; 3], [f32; 3], [f32; 3]);
+
+/// Whether the pair of the ray and the piece's line `lines` over the segment `span` and
+/// the piece's [s0, s1) = `ends` counts under `kernel` at radius r, and what its term
+/// reads: eq. 2's crossing and edge rule ([`closest_xyz`], [`counts`]), or the tube's
+/// chord ([`tube::pair`]). Lines nearer parallel than sin^2 = 1e-10 never count.
+/// Branch-free for each kernel: the wide lanes run it, and give its bits.
 #[inline(always)]
-pub fn pair_counts(
+pub fn pair(
     kernel: BeamKernel,
-    (o, w): (Vec3, Vec3),
-    p: &BeamPiece,
-    c: &Crossing,
+    lines: Lines,
     span: (f32, f32),
+    ends: (f32, f32),
     r: f32,
-) -> bool {
-    let ends = (p.s0, p.s1);
+) -> (bool, Crossing) {
     match kernel {
-        BeamKernel::Line => counts(c, span, ends, r),
-        BeamKernel::Tube => tube::counts((o.into(), w.into()), (p.origin, p.dir), span, ends, r),
+        BeamKernel::Line => {
+            let c = closest_xyz(lines.0, lines.1, lines.2, lines.3);
+            ((c.sin2 >= 1e-10) & counts(&c, span, ends, r), c)
+        }
+        BeamKernel::Tube => tube::pair(lines, span, ends, r),
     }
 }
 
-/// The term of a pair that [`pair_counts`] under `kernel`, and whether it also counts at
+/// The term of a pair that counts under `kernel` ([`pair`]), and whether it also counts at
 /// r/2 (where the kernel is [`BeamKernel::inner_ratio`] times as high).
 #[inline(always)]
 pub fn pair_term(
     kernel: BeamKernel,
     ray: &Ray,
     (piece, c): (&BeamPiece, &Crossing),
-    span: (f32, f32),
     r: f32,
     in_scatter: impl Fn(Vec3, f32) -> Rgb,
     tr: impl Fn(f32) -> f32,
 ) -> (Rgb, bool) {
     match kernel {
         BeamKernel::Line => counted_term(ray, c, piece, r, in_scatter, tr),
-        BeamKernel::Tube => tube::counted_term(ray, piece, span, r, in_scatter, tr),
+        BeamKernel::Tube => tube::counted_term(ray, piece, c, r, in_scatter, tr),
     }
 }
 

@@ -1,16 +1,16 @@
-//! Eq. 2's crossing and edge rule ([`closest_xyz`], [`counts`]) for many pairs at once: one
+//! Each kernel's rule for which pairs count ([`pair`]: eq. 2's crossing and edge rule, or
+//! the tube's chord) for many pairs at once: one
 //! beam piece against a run of camera rays from one origin (the splat's rows), or one
 //! camera segment against the pieces a BVH query returns (the gather). Most candidate
 //! pairs are rejected here; only those that count go on to the scalar
-//! [`counted_term`](super::eq2::counted_term), with its lookups.
+//! [`pair_term`](super::eq2::pair_term), with its lookups.
 //!
 //! Each lane runs the scalar functions themselves, inlined, so every instruction set finds
 //! the same pairs with the same bits (`core::simd`).
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::eq2::{closest_xyz, counts, crossing, pair_counts, BeamKernel, BeamPiece, Crossing};
-use super::tube;
+use super::eq2::{pair, BeamKernel, BeamPiece, Crossing};
 use crate::core::simd::Isa;
 use crate::core::Ray;
 
@@ -96,57 +96,19 @@ impl<const N: usize> Pairs<N> {
         self.scale[k] = p.scale;
     }
 
-    /// Lane k's pair: whether it counts ([`crate::estimate::eq2::crossing`]'s test for
-    /// parallel lines, then the kernel's rule `counts`), and its crossing.
+    /// Lane k's pair by the kernel's rule ([`pair`]): whether it counts, and its crossing.
     #[inline(always)]
-    fn test(&self, k: usize, r: f32, counts: &impl CountRule) -> (bool, Crossing) {
+    fn test<const K: u8>(&self, k: usize, r: f32) -> (bool, Crossing) {
         let at = |v: &[[f32; N]; 3]| [v[0][k], v[1][k], v[2][k]];
         let lines = (at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
-        let c = closest_xyz(lines.0, lines.1, lines.2, lines.3);
         let (span, ends) = ((self.t[0][k], self.t[1][k]), (self.s[0][k], self.s[1][k]));
-        let r = r * self.scale[k];
-        (
-            (c.sin2 >= 1e-10) & counts.counts(lines, &c, span, ends, r),
-            c,
-        )
+        pair(KERNELS[K as usize], lines, span, ends, r * self.scale[k])
     }
 }
 
-/// A kernel's rule for which pairs count, as a type: each rule's lane loop is compiled on
-/// its own (a rule chosen inside the loop kept LLVM from vectorising it).
-trait CountRule {
-    /// The pair of the lines (o, w, y, psi), whose crossing is `c`, over `span` and `ends`.
-    fn counts(
-        &self,
-        lines: Lines,
-        c: &Crossing,
-        span: (f32, f32),
-        ends: (f32, f32),
-        r: f32,
-    ) -> bool;
-}
-
-/// A pair's ray o + t w and piece line y + s psi, as plain components.
-type Lines = ([f32; 3], [f32; 3], [f32; 3], [f32; 3]);
-
-/// Eq. 2's edge rule.
-struct LineRule;
-/// The tube's chord.
-struct TubeRule;
-
-impl CountRule for LineRule {
-    #[inline(always)]
-    fn counts(&self, _: Lines, c: &Crossing, span: (f32, f32), ends: (f32, f32), r: f32) -> bool {
-        counts(c, span, ends, r)
-    }
-}
-
-impl CountRule for TubeRule {
-    #[inline(always)]
-    fn counts(&self, l: Lines, _: &Crossing, span: (f32, f32), ends: (f32, f32), r: f32) -> bool {
-        tube::counts((l.0, l.1), (l.2, l.3), span, ends, r)
-    }
-}
+/// The kernels by a const index: each kernel's lane loop is compiled on its own (a kernel
+/// chosen inside the loop kept LLVM from vectorising it).
+const KERNELS: [BeamKernel; 2] = [BeamKernel::Line, BeamKernel::Tube];
 
 /// The crossings of N pairs, lane by lane, and a bit per pair that counts.
 struct Lanes<const N: usize> {
@@ -155,7 +117,8 @@ struct Lanes<const N: usize> {
     s: [f32; N],
     dist2: [f32; N],
     sin2: [f32; N],
-    cos: [f32; N],
+    lo: [f32; N],
+    hi: [f32; N],
 }
 
 impl<const N: usize> Lanes<N> {
@@ -163,13 +126,14 @@ impl<const N: usize> Lanes<N> {
     #[inline(always)]
     fn test(fill: impl FnOnce(&mut Pairs<N>), r: f32, kernel: BeamKernel) -> Lanes<N> {
         match kernel {
-            BeamKernel::Line => Self::test_by(fill, r, &LineRule),
-            BeamKernel::Tube => Self::test_by(fill, r, &TubeRule),
+            BeamKernel::Line => Self::test_by::<0>(fill, r),
+            BeamKernel::Tube => Self::test_by::<1>(fill, r),
         }
     }
 
+    /// [`Self::test`] by kernel `KERNELS[K]`.
     #[inline(always)]
-    fn test_by(fill: impl FnOnce(&mut Pairs<N>), r: f32, rule: &impl CountRule) -> Lanes<N> {
+    fn test_by<const K: u8>(fill: impl FnOnce(&mut Pairs<N>), r: f32) -> Lanes<N> {
         let mut pairs = Pairs::zero();
         fill(&mut pairs);
         let z = [0.0; N];
@@ -179,7 +143,8 @@ impl<const N: usize> Lanes<N> {
             s: z,
             dist2: z,
             sin2: z,
-            cos: z,
+            lo: z,
+            hi: z,
         };
         // The mask is built in a second loop: folded into this one, it kept LLVM from
         // vectorising the lanes.
@@ -187,9 +152,9 @@ impl<const N: usize> Lanes<N> {
         #[allow(clippy::needless_range_loop)] // one index over six arrays
         for k in 0..N {
             let c;
-            (ok[k], c) = pairs.test(k, r, rule);
+            (ok[k], c) = pairs.test::<K>(k, r);
             (out.t[k], out.s[k], out.dist2[k]) = (c.t, c.s, c.dist2);
-            (out.sin2[k], out.cos[k]) = (c.sin2, c.cos);
+            (out.sin2[k], out.lo[k], out.hi[k]) = (c.sin2, c.lo, c.hi);
         }
         for (k, ok) in ok.into_iter().enumerate() {
             out.mask |= (ok as u32) << k;
@@ -208,15 +173,15 @@ impl<const N: usize> Lanes<N> {
                 s: self.s[k],
                 dist2: self.dist2[k],
                 sin2: self.sin2[k],
-                cos: self.cos[k],
+                lo: self.lo[k],
+                hi: self.hi[k],
             };
             visit(k, &c);
         }
     }
 }
 
-/// One pair the scalar way: eq2's [`crossing`] and [`pair_counts`] themselves, at r times
-/// the piece's scale.
+/// One pair the scalar way: eq2's [`pair`] itself, at r times the piece's scale.
 fn scalar(
     o: Vec3,
     w: Vec3,
@@ -225,8 +190,9 @@ fn scalar(
     r: f32,
     kernel: BeamKernel,
 ) -> Option<Crossing> {
-    let c = crossing(o, w, Vec3::from(p.origin), Vec3::from(p.dir))?;
-    pair_counts(kernel, (o, w), p, &c, span, r * p.scale).then_some(c)
+    let lines = (o.into(), w.into(), p.origin, p.dir);
+    let (ok, c) = pair(kernel, lines, span, (p.s0, p.s1), r * p.scale);
+    ok.then_some(c)
 }
 
 /// The lanes that a step of `n` lanes keeps when `left` pairs are left.
@@ -505,10 +471,10 @@ mod tests {
     }
 
     /// Pairs that count, as (index, crossing bits).
-    type Found = Vec<(usize, [u32; 5])>;
+    type Found = Vec<(usize, [u32; 6])>;
 
-    fn bits(i: usize, c: &Crossing) -> (usize, [u32; 5]) {
-        (i, [c.t, c.s, c.dist2, c.sin2, c.cos].map(f32::to_bits))
+    fn bits(i: usize, c: &Crossing) -> (usize, [u32; 6]) {
+        (i, [c.t, c.s, c.dist2, c.sin2, c.lo, c.hi].map(f32::to_bits))
     }
 
     /// Every instruction set this CPU runs finds the pairs of eq2's scalar [`crossing`] and

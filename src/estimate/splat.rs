@@ -101,8 +101,7 @@ pub fn splat(
                     }
                     let pixels = y * w + x0..y * w + x1 + 1;
                     fixed.for_each_counted(isa, &rays, pixels, |i, c| {
-                        let span = (0.0, rays.t1[i]);
-                        let pair = (&piece, c, span, own, kernel);
+                        let pair = (&piece, c, own, kernel);
                         let l = contribution(origin, &primaries[i], pair, media);
                         img[i - row0 * w].add_in(l, kernel.inner_ratio());
                         evals += 1;
@@ -168,18 +167,18 @@ fn nearest_crossing(o: Vec3, piece: &BeamPiece, r: f32, kernel: BeamKernel) -> f
     t * (1.0 - 1e-4) - 1e-4 * r
 }
 
-/// The kernel's term for one beam and one primary segment over `span` (its seen part of
-/// [0, t_surf)) whose crossing `c` counts at radius r.
+/// The kernel's term for one beam and one primary segment whose crossing `c` counts at
+/// radius r.
 #[inline(always)]
 fn contribution(
     o: Vec3,
     p: &Primary,
-    (beam, c, span, r, kernel): (&BeamPiece, &Crossing, (f32, f32), f32, BeamKernel),
+    (beam, c, r, kernel): (&BeamPiece, &Crossing, f32, BeamKernel),
     media: &Media,
 ) -> (Rgb, bool) {
     let ray = Ray::new(o, p.dir);
     let scatter = |x, cos| media.in_scatter(x, cos);
-    pair_term(kernel, &ray, (beam, c), span, r, scatter, |t| {
+    pair_term(kernel, &ray, (beam, c), r, scatter, |t| {
         camera_tr(&p.chords, &p.tr, t)
     })
 }
@@ -361,7 +360,8 @@ mod tests {
                 continue;
             };
             let (span, ends) = ((0.0, f32::INFINITY), (0.0, length));
-            if tube::counts((o.into(), w.into()), (a.into(), d.into()), span, ends, r) {
+            let lines = (o.into(), w.into(), a.into(), d.into());
+            if crate::estimate::eq2::pair(BeamKernel::Tube, lines, span, ends, r).0 {
                 let lo = tube::chord(o.into(), w.into(), a.into(), d.into(), span, ends, r).lo;
                 let bound = nearest_crossing(o, &piece, r, BeamKernel::Tube);
                 assert!(lo >= bound, "chord from {lo} < bound {bound} (r {r})");

@@ -15,7 +15,7 @@
 //! (docs/benchmarks.md, "The tube kernel").
 use glam::Vec3;
 
-use super::eq2::BeamPiece;
+use super::eq2::{BeamPiece, Crossing, Lines};
 use crate::core::Ray;
 use crate::core::Rgb;
 use crate::sampling::mix64;
@@ -62,7 +62,8 @@ pub fn chord(
     // q(t) < r^2 between the roots, where the discriminant is positive.
     let k = -(h + (h * h - a * cr).sqrt().copysign(h));
     let (ra, rb) = (k / a, cr / k);
-    let (sa, sb) = ((s0 - e) / b, (s1 - e) / b);
+    let inv_b = 1.0 / b;
+    let (sa, sb) = ((s0 - e) * inv_b, (s1 - e) * inv_b);
     let lo = ra.min(rb).max(sa.min(sb)).max(t0);
     let hi = ra.max(rb).min(sa.max(sb)).min(t1);
     Chord { lo, hi, a, h, c }
@@ -75,25 +76,24 @@ impl Chord {
     pub fn counts(&self, r: f32) -> bool {
         (self.h * self.h - self.a * (self.c - r * r) > 0.0) & (self.lo < self.hi)
     }
-
-    /// The squared distance from the ray's point at t to the axis.
-    fn dist2_at(&self, t: f32) -> f32 {
-        (self.a * t + 2.0 * self.h) * t + self.c
-    }
 }
 
-/// Whether the pair of ray o + t w over `span` and the piece y + s psi over `ends` counts
-/// under the tube kernel at radius r. (Lines nearer parallel than sin^2 = 1e-10 are left
-/// out by the callers, as for the line kernel.)
+/// Whether the pair of `lines` over `span` and `ends` counts under the tube kernel at
+/// radius r (the lines at least sin^2 = 1e-10 from parallel, as for eq. 2), as
+/// [`super::eq2::pair`] says it: the chord in the crossing's `lo` and `hi`, sin^2 in its
+/// `sin2`, its t, s and dist2 0 (the term reads none of them).
 #[inline(always)]
-pub fn counts(
-    (o, w): ([f32; 3], [f32; 3]),
-    (y, psi): ([f32; 3], [f32; 3]),
-    span: (f32, f32),
-    ends: (f32, f32),
-    r: f32,
-) -> bool {
-    chord(o, w, y, psi, span, ends, r).counts(r)
+pub fn pair(lines: Lines, span: (f32, f32), ends: (f32, f32), r: f32) -> (bool, Crossing) {
+    let ch = chord(lines.0, lines.1, lines.2, lines.3, span, ends, r);
+    let c = Crossing {
+        t: 0.0,
+        s: 0.0,
+        dist2: 0.0,
+        sin2: ch.a,
+        lo: ch.lo,
+        hi: ch.hi,
+    };
+    ((ch.a >= 1e-10) & ch.counts(r), c)
 }
 
 /// The chord of `ray` over `span` and `piece` at radius r.
@@ -104,32 +104,30 @@ pub fn piece_chord(ray: &Ray, piece: &BeamPiece, span: (f32, f32), r: f32) -> Ch
 
 /// A uniform number in [0, 1) for a pair, from its chord's and its piece's bits (two
 /// pieces whose chords are both cut to a pixel's whole segment share the chord): the same
-/// pair gets the
-/// same number on every thread, lane count and walker, and the pairs of a pass (whose
-/// rays are jittered) get numbers as good as independent of each other and of the
-/// integrand along the chord.
+/// pair gets the same number on every thread, lane count and walker, and the pairs of a
+/// pass (whose rays are jittered) get numbers as good as independent of each other and of
+/// the integrand along the chord.
 #[inline(always)]
-fn pair_u(ch: &Chord, piece: &BeamPiece) -> f32 {
-    let ends = ((ch.lo.to_bits() as u64) << 32) | ch.hi.to_bits() as u64;
-    let at = ((piece.origin[0].to_bits() as u64) << 32) | piece.origin[1].to_bits() as u64;
-    let z = mix64(mix64(ends) ^ at);
+fn pair_u((lo, hi): (f32, f32), piece: &BeamPiece) -> f32 {
+    let ends = ((lo.to_bits() as u64) << 32) | hi.to_bits() as u64;
+    let z = mix64(ends ^ (piece.origin[0].to_bits() as u64).rotate_left(16));
     (z >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
 }
 
-/// The tube's term for a pair that [`counts`] over the segment `span` and the piece, and
-/// whether its point is also within r/2 of the axis, where the kernel is 4 times as high
-/// (the nested estimate's inner term is then 4 l, else 0: see `Nested::add_in`).
+/// The tube's term for a pair that counts, its chord in `c` ([`pair`]), and whether its
+/// point is also within r/2 of the axis, where the kernel is 4 times as high (the nested
+/// estimate's inner term is then 4 l, else 0: see `Nested::add_in`).
 #[inline(always)]
 pub fn counted_term(
     ray: &Ray,
     piece: &BeamPiece,
-    span: (f32, f32),
+    c: &Crossing,
     r: f32,
     in_scatter: impl Fn(Vec3, f32) -> Rgb,
     tr: impl Fn(f32) -> f32,
 ) -> (Rgb, bool) {
-    let ch = piece_chord(ray, piece, span, r);
-    term_at(ray, piece, &ch, r, pair_u(&ch, piece), in_scatter, tr)
+    let chord = (c.lo, c.hi);
+    term_at(ray, piece, chord, r, pair_u(chord, piece), in_scatter, tr)
 }
 
 /// [`counted_term`] at the chord's point lo + u (hi - lo).
@@ -137,21 +135,23 @@ pub fn counted_term(
 fn term_at(
     ray: &Ray,
     piece: &BeamPiece,
-    ch: &Chord,
+    (lo, hi): (f32, f32),
     r: f32,
     u: f32,
     in_scatter: impl Fn(Vec3, f32) -> Rgb,
     tr: impl Fn(f32) -> f32,
 ) -> (Rgb, bool) {
-    let t = ch.lo + u * (ch.hi - ch.lo);
-    let inner = 4.0 * ch.dist2_at(t) < r * r;
-    let psi = Vec3::from(piece.dir);
-    let f = in_scatter(ray.at(t), psi.dot(-ray.d));
+    let t = lo + u * (hi - lo);
+    let x = ray.at(t);
+    let (y, psi) = (Vec3::from(piece.origin), Vec3::from(piece.dir));
+    let off = x - y;
+    let inner = 4.0 * (off - psi * off.dot(psi)).length_squared() < r * r;
+    let f = in_scatter(x, psi.dot(-ray.d));
     if f == Vec3::ZERO {
         return (Vec3::ZERO, inner);
     }
     let area = std::f32::consts::PI * r * r;
-    let l = f * Vec3::from(piece.power) * ((ch.hi - ch.lo) * tr(t) / area);
+    let l = f * Vec3::from(piece.power) * ((hi - lo) * tr(t) / area);
     (l, inner)
 }
 
@@ -246,7 +246,7 @@ mod tests {
             if !ch.counts(0.1) {
                 continue;
             }
-            let u = pair_u(&ch, &piece);
+            let u = pair_u((ch.lo, ch.hi), &piece);
             assert!((0.0..1.0).contains(&u));
             bins[(u * 20.0) as usize] += 1;
             counted += 1;
@@ -284,7 +284,11 @@ mod tests {
         let n = 40_000;
         let mut rng = Rng::new(9, 3);
         let draws: Vec<f64> = (0..n)
-            .map(|_| term_at(&ray, &piece, &ch, r, rng.f32(), scatter, tr).0.x as f64)
+            .map(|_| {
+                term_at(&ray, &piece, (ch.lo, ch.hi), r, rng.f32(), scatter, tr)
+                    .0
+                    .x as f64
+            })
             .collect();
         let mean = draws.iter().sum::<f64>() / n as f64;
         let var = draws.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
@@ -314,7 +318,8 @@ mod tests {
             }
             counted += 1;
             let u = rng.f32();
-            let (_, flag) = term_at(&ray, &piece, &ch, r, u, |_, _| Vec3::ONE, |_| 1.0);
+            let chord = (ch.lo, ch.hi);
+            let (_, flag) = term_at(&ray, &piece, chord, r, u, |_, _| Vec3::ONE, |_| 1.0);
             let x = ray.at(ch.lo + u * (ch.hi - ch.lo));
             let (y, psi) = (Vec3::from(piece.origin), Vec3::from(piece.dir));
             let d = (x - y - psi * (x - y).dot(psi)).length();

@@ -261,6 +261,13 @@ impl Media {
         })
     }
 
+    /// The largest |g| of the media's phase functions (0: all isotropic).
+    pub fn anisotropy(&self) -> f32 {
+        let homogeneous = self.media.iter().map(|m| m.phase.g.abs());
+        let grids = self.grids.iter().map(|g| g.phase.g.abs());
+        homogeneous.chain(grids).fold(0.0, f32::max)
+    }
+
     /// Total extinction at `p` (1/m).
     pub fn sigma_t(&self, p: Vec3) -> f32 {
         self.homogeneous_sigma_t(p) + self.grid_sigma_t(p)
