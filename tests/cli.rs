@@ -195,6 +195,15 @@ fn bad_input_is_one_clear_line() {
         &["render.method", "expected hybrid or ppb", "\"pt\""],
     );
     assert_bad(
+        "bad-beam-kernel",
+        |_, s| rewrite(s, "passes = 2", "passes = 2\nbeam_kernel = \"wide\""),
+        &[
+            "render.beam_kernel",
+            "expected auto, line or tube",
+            "\"wide\"",
+        ],
+    );
+    assert_bad(
         "bad-photon-alpha",
         |_, s| rewrite(s, "passes = 2", "passes = 2\nphoton_alpha = 1.5"),
         &["render.photon_alpha", "(0, 1)"],

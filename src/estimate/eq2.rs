@@ -9,7 +9,9 @@
 //!
 //! [`term`] is what the CPU splat (`splat`, primary segments) and the CPU BVH gather
 //! (`BeamMap::radiance`, segments after specular bounces) both evaluate, and
-//! `piece_radiance` in `shaders/beam_estimate.wgsl` repeats it comparison for comparison;
+//! `piece_radiance` in `shaders/beam_estimate.wgsl` repeats it comparison for comparison.
+//! The CPU paths reach it, or the tube kernel's term ([`tube`]), through the kernel's
+//! [`pair`] rule and [`pair_term`];
 //! [`camera_tr`](crate::transport::transmittance::camera_tr) is the camera-transmittance factor both CPU paths use (the shader's
 //! `camera_tr` reads the same estimate as steps).
 use bytemuck::{Pod, Zeroable};

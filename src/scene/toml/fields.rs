@@ -41,7 +41,12 @@ pub(super) fn render_settings(ck: &Check, r: &FileRender) -> Result<RenderSettin
         bandwidth: ck.word("render.bandwidth", r.bandwidth.as_deref(), d.bandwidth)?,
         beam_kernel: match r.beam_kernel.as_deref() {
             None | Some("auto") => None,
-            w => Some(ck.word("render.beam_kernel", w, BeamKernel::Tube)?),
+            Some(w) => Some(
+                <BeamKernel as clap::ValueEnum>::from_str(w, false).map_err(|_| {
+                    let msg = format!("expected auto, line or tube, got \"{w}\"");
+                    ck.err("render.beam_kernel", msg)
+                })?,
+            ),
         },
         ..d
     };
