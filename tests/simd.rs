@@ -16,8 +16,8 @@ fn scene(name: &str) -> PathBuf {
 }
 
 /// Renders `scene` small with `PPB_SIMD=isa`; returns the pixels' bits and `--stats`'s
-/// "simd".
-fn render(dir: &Path, scene: &Path, isa: Isa) -> (Vec<u32>, String) {
+/// "simd" and "beam_kernel".
+fn render(dir: &Path, scene: &Path, isa: Isa) -> (Vec<u32>, String, String) {
     let (exr, stats) = (
         dir.join(format!("{}.exr", isa.name())),
         dir.join("stats.json"),
@@ -41,17 +41,21 @@ fn render(dir: &Path, scene: &Path, isa: Isa) -> (Vec<u32>, String) {
     let bits = image.pixels.iter().flatten().map(|v| v.to_bits()).collect();
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
-    (bits, json["simd"].as_str().unwrap_or("").to_string())
+    let text = |k: &str| json[k].as_str().unwrap_or("").to_string();
+    (bits, text("simd"), text("beam_kernel"))
 }
 
-/// A homogeneous box, a density grid, a cloud and glass: the splat's lanes on each.
+/// A homogeneous box, a density grid, a cloud and glass: the splat's lanes on each (the
+/// tube kernel's on cloud-hg, whose HG g = 0.7 asks for it; eq. 2's on the isotropic rest).
 #[test]
 fn every_isa_renders_the_scalar_image() {
     let dir = common::temp_dir("simd", "images");
     let mut wide = 0;
     for name in ["fog-box", "smoke-grid", "cloud-hg", "glass-caustic"] {
-        let (reference, ran) = render(&dir, &scene(name), Isa::Scalar);
+        let (reference, ran, kernel) = render(&dir, &scene(name), Isa::Scalar);
         assert_eq!(ran, "scalar");
+        let want = if name == "cloud-hg" { "tube" } else { "line" };
+        assert_eq!(kernel, want, "{name}");
         assert!(
             reference.iter().any(|&b| f32::from_bits(b) > 0.0),
             "{name}: black"
@@ -60,7 +64,7 @@ fn every_isa_renders_the_scalar_image() {
             .into_iter()
             .filter(|&i| i != Isa::Scalar && i.supported())
         {
-            let (bits, ran) = render(&dir, &scene(name), isa);
+            let (bits, ran, _) = render(&dir, &scene(name), isa);
             assert_eq!(ran, isa.name(), "{name}");
             let differ = bits.iter().zip(&reference).filter(|(a, b)| a != b).count();
             assert_eq!(differ, 0, "{name}: {differ} channels differ with {isa:?}");

@@ -19,7 +19,7 @@ use ppb::output::{Channel, ExrMeta};
 use ppb::pass::Tracer;
 use ppb::scene::toml::{self as scene_toml, SceneFile};
 use ppb::session::{Flow, Session};
-use ppb::settings::{Method, RenderSettings};
+use ppb::settings::{BeamKernel, Method, RenderSettings};
 use ppb::transport::camera::Pinhole;
 use ppb::transport::Counters;
 
@@ -160,6 +160,9 @@ struct Stats {
     /// The instruction set of the CPU's wide loops (`core::simd`): "scalar", "avx2" or
     /// "avx512".
     simd: &'static str,
+    /// The beam kernel the estimate ran: "line" (eq. 2) or "tube" (`--beam-kernel auto`
+    /// resolved).
+    beam_kernel: BeamKernel,
     gpu: Option<GpuStats>,
     /// The image's expected rel_l1 from its converged mean (its noise), per pixel and on
     /// 4x4 block means; null before each half-film holds 2 passes.
@@ -891,6 +894,11 @@ fn write_stats(
         counters: session.counters,
         device: session.device(),
         simd: ppb::core::simd::isa().name(),
+        // The GPU's shader has the line kernel only (`Session::open`).
+        beam_kernel: match session.gpu_stats() {
+            Some(_) => BeamKernel::Line,
+            None => t.view().kernel,
+        },
         gpu: session.gpu_stats(),
         estimated_rel_l1,
     };
