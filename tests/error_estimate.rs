@@ -437,33 +437,26 @@ fn adaptive_bandwidth_from_the_command_line() {
     assert_eq!(attr("ppb/bandwidth").as_deref(), Some("adaptive"));
     assert!(attr("ppb/estimated_bias_rel_l1").is_some());
     // The GPU's shader has eq. 2's line kernel only: both devices render with it here.
+    let line_args = [
+        "--beam-kernel",
+        "line",
+        "--passes",
+        "8",
+        "--bandwidth",
+        "adaptive",
+    ];
     let line_out = dir.join("l.exr");
     let line = ppb()
         .args(small(&line_out))
-        .args([
-            "--beam-kernel",
-            "line",
-            "--passes",
-            "8",
-            "--bandwidth",
-            "adaptive",
-        ])
+        .args(line_args)
         .output()
         .unwrap();
     assert!(line.status.success());
     let gpu_out = dir.join("g.exr");
     let gpu = ppb()
         .args(small(&gpu_out))
-        .args([
-            "--beam-kernel",
-            "line",
-            "--passes",
-            "8",
-            "--bandwidth",
-            "adaptive",
-            "--device",
-            "gpu",
-        ])
+        .args(line_args)
+        .args(["--device", "gpu"])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&gpu.stderr);

@@ -98,17 +98,18 @@ impl<const N: usize> Pairs<N> {
 
     /// Lane k's pair by the kernel's rule ([`pair`]): whether it counts, and its crossing.
     #[inline(always)]
-    fn test<const K: u8>(&self, k: usize, r: f32) -> (bool, Crossing) {
+    fn test<const TUBE: bool>(&self, k: usize, r: f32) -> (bool, Crossing) {
         let at = |v: &[[f32; N]; 3]| [v[0][k], v[1][k], v[2][k]];
         let lines = (at(&self.o), at(&self.w), at(&self.y), at(&self.psi));
         let (span, ends) = ((self.t[0][k], self.t[1][k]), (self.s[0][k], self.s[1][k]));
-        pair(KERNELS[K as usize], lines, span, ends, r * self.scale[k])
+        let kernel = if TUBE {
+            BeamKernel::Tube
+        } else {
+            BeamKernel::Line
+        };
+        pair(kernel, lines, span, ends, r * self.scale[k])
     }
 }
-
-/// The kernels by a const index: each kernel's lane loop is compiled on its own (a kernel
-/// chosen inside the loop kept LLVM from vectorising it).
-const KERNELS: [BeamKernel; 2] = [BeamKernel::Line, BeamKernel::Tube];
 
 /// The crossings of N pairs, lane by lane, and a bit per pair that counts.
 struct Lanes<const N: usize> {
@@ -126,14 +127,16 @@ impl<const N: usize> Lanes<N> {
     #[inline(always)]
     fn test(fill: impl FnOnce(&mut Pairs<N>), r: f32, kernel: BeamKernel) -> Lanes<N> {
         match kernel {
-            BeamKernel::Line => Self::test_by::<0>(fill, r),
-            BeamKernel::Tube => Self::test_by::<1>(fill, r),
+            BeamKernel::Line => Self::test_by::<false>(fill, r),
+            BeamKernel::Tube => Self::test_by::<true>(fill, r),
         }
     }
 
-    /// [`Self::test`] by kernel `KERNELS[K]`.
+    /// [`Self::test`] by the tube's rule or eq. 2's, as a constant: each kernel's lane loop
+    /// is compiled on its own (a kernel chosen inside the loop kept LLVM from vectorising
+    /// it).
     #[inline(always)]
-    fn test_by<const K: u8>(fill: impl FnOnce(&mut Pairs<N>), r: f32) -> Lanes<N> {
+    fn test_by<const TUBE: bool>(fill: impl FnOnce(&mut Pairs<N>), r: f32) -> Lanes<N> {
         let mut pairs = Pairs::zero();
         fill(&mut pairs);
         let z = [0.0; N];
@@ -152,7 +155,7 @@ impl<const N: usize> Lanes<N> {
         #[allow(clippy::needless_range_loop)] // one index over six arrays
         for k in 0..N {
             let c;
-            (ok[k], c) = pairs.test::<K>(k, r);
+            (ok[k], c) = pairs.test::<TUBE>(k, r);
             (out.t[k], out.s[k], out.dist2[k]) = (c.t, c.s, c.dist2);
             (out.sin2[k], out.lo[k], out.hi[k]) = (c.sin2, c.lo, c.hi);
         }

@@ -97,7 +97,8 @@ pub fn pair(lines: Lines, span: (f32, f32), ends: (f32, f32), r: f32) -> (bool, 
 }
 
 /// The chord of `ray` over `span` and `piece` at radius r.
-pub fn piece_chord(ray: &Ray, piece: &BeamPiece, span: (f32, f32), r: f32) -> Chord {
+#[cfg(test)]
+pub(crate) fn piece_chord(ray: &Ray, piece: &BeamPiece, span: (f32, f32), r: f32) -> Chord {
     let (o, w) = (ray.o.into(), ray.d.into());
     chord(o, w, piece.origin, piece.dir, span, (piece.s0, piece.s1), r)
 }
@@ -159,6 +160,12 @@ fn term_at(
 mod tests {
     use super::*;
     use crate::sampling::{uniform_sphere, Rng};
+    use crate::transport::Beam;
+
+    /// The whole beam from `y` along `psi`, `len` long, of power `power` in each channel.
+    fn piece(y: Vec3, psi: Vec3, len: f32, power: f32) -> BeamPiece {
+        BeamPiece::whole(&Beam::new(y, psi, len, Vec3::splat(power)))
+    }
 
     /// The length of the ray's part over `span` within r of the piece's axis and between
     /// its end planes, by midpoint sums over n steps.
@@ -189,15 +196,7 @@ mod tests {
         let centre = Vec3::new(1.0 + rng.f32(), (rng.f32() - 0.5) * 3.0 * r, 0.0);
         let len = 4.0 * r * rng.f32();
         let y = centre - psi * (len * rng.f32());
-        let piece = BeamPiece {
-            origin: y.into(),
-            s0: 0.0,
-            dir: psi.into(),
-            s1: len,
-            power: [1.0; 3],
-            scale: 1.0,
-        };
-        (ray, piece)
+        (ray, piece(y, psi, len, 1.0))
     }
 
     /// The chord's length against midpoint sums along the ray, for pieces at every angle
@@ -267,15 +266,7 @@ mod tests {
         let r = 0.2f32;
         let psi = Vec3::new(-0.96, 0.28, 0.0);
         let ray = Ray::new(Vec3::ZERO, Vec3::X);
-        let y = Vec3::new(1.5, 0.05, 0.0) - psi * 0.3;
-        let piece = BeamPiece {
-            origin: y.into(),
-            s0: 0.0,
-            dir: psi.into(),
-            s1: 0.6,
-            power: [2.0; 3],
-            scale: 1.0,
-        };
+        let piece = piece(Vec3::new(1.5, 0.05, 0.0) - psi * 0.3, psi, 0.6, 2.0);
         let ch = piece_chord(&ray, &piece, (0.0, 10.0), r);
         assert!(ch.counts(r) && ch.hi - ch.lo > 0.3, "a long chord: {ch:?}");
         let g = |t: f32| (1.0 + t) * (-8.0 * t).exp();
@@ -345,15 +336,7 @@ mod tests {
         for i in 0..n {
             let d = -r as f64 + (i as f64 + 0.5) * h;
             let ray = Ray::new(Vec3::new(0.0, d as f32, 0.0), Vec3::X);
-            let y = Vec3::new(1.0, 0.0, 0.0) - psi * 5.0;
-            let piece = BeamPiece {
-                origin: y.into(),
-                s0: 0.0,
-                dir: psi.into(),
-                s1: 10.0,
-                power: [1.0; 3],
-                scale: 1.0,
-            };
+            let piece = piece(Vec3::new(1.0, 0.0, 0.0) - psi * 5.0, psi, 10.0, 1.0);
             let ch = piece_chord(&ray, &piece, (0.0, 10.0), r);
             if ch.counts(r) {
                 sum += (ch.hi - ch.lo) as f64 * h / (std::f64::consts::PI * (r * r) as f64);
