@@ -152,6 +152,89 @@ fn piece_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
     return out;
 }
 
+// `tube::chord`: the part [lo, hi) of the segment within r of the piece's axis and between
+// its end planes, from the ray's offset p + t q from the axis (the same arithmetic, so the
+// same bits where the adapter rounds as the CPU does), and whether the pair counts
+// (the lines at least sin^2 = 1e-10 from parallel, the discriminant positive, lo < hi).
+struct Chord {
+    lo: f32,
+    hi: f32,
+    counts: bool,
+}
+
+// Rust's f32::copysign: the magnitude of m with the sign bit of s.
+fn copysign(m: f32, s: f32) -> f32 {
+    return bitcast<f32>((bitcast<u32>(m) & 0x7fffffffu) | (bitcast<u32>(s) & 0x80000000u));
+}
+
+fn tube_chord(seg: Segment, p: BeamPiece, r: f32) -> Chord {
+    let w = seg.dir;
+    let psi = p.dir;
+    let w0 = seg.origin - p.origin;
+    let b = dot(w, psi);
+    let e = dot(psi, w0);
+    let off = w0 - e * psi;
+    let q = w - b * psi;
+    let a = dot(q, q);
+    let h = dot(off, q);
+    let c = dot(off, off);
+    let cr = c - r * r;
+    let k = -(h + copysign(sqrt(h * h - a * cr), h));
+    let ra = k / a;
+    let rb = cr / k;
+    let inv_b = 1.0 / b;
+    let sa = (p.s0 - e) * inv_b;
+    let sb = (p.s1 - e) * inv_b;
+    let lo = max(max(min(ra, rb), min(sa, sb)), seg.t0);
+    let hi = min(min(max(ra, rb), max(sa, sb)), seg.t1);
+    let counts = a >= 1e-10 && h * h - a * (c - r * r) > 0.0 && lo < hi;
+    return Chord(lo, hi, counts);
+}
+
+// `tube::pair_u`: the pair's uniform number from the segment's ray and the piece's bits.
+fn pair_u(seg: Segment, p: BeamPiece) -> f32 {
+    let words = array<u32, 10>(
+        bitcast<u32>(seg.origin.x), bitcast<u32>(seg.origin.y), bitcast<u32>(seg.origin.z),
+        bitcast<u32>(seg.dir.x), bitcast<u32>(seg.dir.y), bitcast<u32>(seg.dir.z),
+        bitcast<u32>(p.origin.x), bitcast<u32>(p.origin.y), bitcast<u32>(p.origin.z),
+        bitcast<u32>(p.s0),
+    );
+    var h = 0x9e3779b9u;
+    for (var i = 0u; i < 10u; i++) {
+        h = pcg_hash(h ^ words[i]);
+    }
+    return f32(h >> 8u) * (1.0 / 16777216.0);
+}
+
+// The tube kernel's term (`estimate::tube::counted_term`) at the pair's point on its chord,
+// and its nested difference: 3 l where that point is within r/2 of the axis (the kernel
+// there is 4 times as high), else -l.
+fn tube_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
+    let r = params.radius * p.scale;
+    let ch = tube_chord(seg, p, r);
+    var out = Term(vec4<f32>(0.0), vec4<f32>(0.0));
+    if ch.counts {
+        let t = ch.lo + pair_u(seg, p) * (ch.hi - ch.lo);
+        let x = seg.origin + seg.dir * t;
+        let off = x - p.origin;
+        let inner = 4.0 * dot(off - p.dir * dot(off, p.dir), off - p.dir * dot(off, p.dir)) < r * r;
+        let f = in_scatter(x, dot(p.dir, -seg.dir));
+        let area = PI * r * r;
+        let l = f * p.power * ((ch.hi - ch.lo) * camera_tr(seg, inv, t) / area);
+        out.l = vec4<f32>(l, 1.0);
+        out.d = vec4<f32>(select(-l, 3.0 * l, inner), 0.0);
+    }
+    return out;
+}
+
+// The pair's term under the render's kernel.
+fn pair_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
+    if params.kernel == 1u {
+        return tube_radiance(seg, inv, p);
+    }
+    return piece_radiance(seg, inv, p);
+}
+
 // Whether the walk enters node `n`: the slab test, a box the segment only touches included.
 fn hits(n: BvhNode, o: vec3<f32>, inv: vec3<f32>, t0: f32, t1: f32) -> bool {
     let s = slab(o, inv, n.min, n.max, t0, t1);
@@ -178,7 +261,7 @@ fn segment_radiance(seg: Segment, i: u32) -> Walked {
         } else if n.count == 0u {
             node = node + 1u;
         } else {
-            let term = piece_radiance(seg, inv, pieces[n.first + k]);
+            let term = pair_radiance(seg, inv, pieces[n.first + k]);
             sum.l += term.l;
             sum.d += term.d;
             k = k + 1u;
@@ -272,7 +355,7 @@ struct QuadSums {
 fn quad_fs(in: QuadOut) -> QuadSums {
     let px = vec2<u32>(in.pos.xy);
     let seg = primaries[px.y * params.raster_width + px.x];
-    let r = piece_radiance(seg, safe_inv(seg.dir), quads[in.quad].piece);
+    let r = pair_radiance(seg, safe_inv(seg.dir), quads[in.quad].piece);
     if r.l.w == 0.0 {
         discard;
     }

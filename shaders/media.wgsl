@@ -55,7 +55,8 @@ struct Params {
     track_tr: u32,
     // BVH walk iterations per segment per dispatch round.
     walk_budget: u32,
-    _pad1: u32,
+    // The beam kernel: 0 eq. 2's line, 1 the tube.
+    kernel: u32,
     boxes: array<MediumBox, MAX_BOXES>,
     grids: array<GridMeta, MAX_GRIDS>,
 }

@@ -105,8 +105,8 @@ pub struct Overrides {
     /// How a beam is blurred across its direction (overrides [render].beam_kernel): tube
     /// (a 2D disk, gathered over each camera ray's chord through it: no 1/sin(theta)
     /// weight, far less noise where a forward-scattering medium sends beams at the camera;
-    /// the CPU's default where a phase function has |g| >= 0.3) or line (the paper's
-    /// eq. 2; the default otherwise, always with --method ppb, and the GPU's only kernel).
+    /// the default where a phase function has |g| >= 0.3) or line (the paper's eq. 2; the
+    /// default otherwise, and always with --method ppb). Both run on the CPU and the GPU.
     #[arg(long, value_enum)]
     pub beam_kernel: Option<ppb::settings::BeamKernel>,
 }
@@ -374,6 +374,8 @@ fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
 struct OutputMeta<'a> {
     scene: &'a Path,
     settings: &'a RenderSettings,
+    /// The beam kernel that ran (the settings may say auto).
+    kernel: ppb::settings::BeamKernel,
     passes: u32,
     seconds: f64,
     /// More header attributes (e.g. `ppb watch`'s reload number).
@@ -394,8 +396,7 @@ impl OutputMeta<'_> {
             ("ppb/bandwidth", format!("{:?}", s.bandwidth).to_lowercase()),
             (
                 "ppb/beam_kernel",
-                s.beam_kernel
-                    .map_or("auto".into(), |k| format!("{k:?}").to_lowercase()),
+                format!("{:?}", self.kernel).to_lowercase(),
             ),
             ("ppb/light_paths", s.light_paths.to_string()),
             ("ppb/alpha", s.alpha.to_string()),

@@ -265,7 +265,7 @@ impl Tracer {
         View {
             camera: &self.camera,
             media: &self.media,
-            kernel: self.settings.cpu_beam_kernel(self.media.anisotropy()),
+            kernel: self.settings.beam_kernel(self.media.anisotropy()),
         }
     }
 

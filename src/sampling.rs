@@ -35,6 +35,21 @@ pub fn mix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// PCG-RXS-M-XS 32 as a hash (Jarzynski and Olano 2020, "Hash Functions for GPU
+/// Rendering"): a bijection of u32 that spreads structured keys. `shaders/freepath.wgsl`
+/// has the same function, so both devices draw the same numbers from the same keys.
+pub fn pcg_hash(x: u32) -> u32 {
+    let s = x.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    let w = ((s >> ((s >> 28) + 4)) ^ s).wrapping_mul(277_803_737);
+    (w >> 22) ^ w
+}
+
+/// A uniform number in [0, 1) from `words`, each folded in by one [`pcg_hash`].
+pub fn hash_unit(words: &[u32]) -> f32 {
+    let h = words.iter().fold(0x9e37_79b9, |h, &w| pcg_hash(h ^ w));
+    (h >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+}
+
 impl Rng {
     pub fn new(seed: u64, seq: u64) -> Self {
         let mut r = Rng {

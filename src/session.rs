@@ -18,7 +18,6 @@ use crate::gpu::Gpu;
 use crate::output::Image;
 use crate::pass::Tracer;
 use crate::plan::{ramp_paths, PassPlan, Plan, Ramp};
-use crate::settings::BeamKernel;
 use crate::transport::transmittance::StratStore;
 use crate::transport::Counters;
 
@@ -97,13 +96,6 @@ impl Session {
         camera_tr: CameraTr,
     ) -> Result<Self> {
         let beams = match gpu {
-            Some(_) if tracer.settings.beam_kernel == Some(BeamKernel::Tube) => {
-                return Err(Error::Other(
-                    "beam_kernel: the GPU beam estimate has eq. 2's line kernel only; \
-                     expected line or auto (or the CPU, --device cpu)"
-                        .into(),
-                ));
-            }
             Some(g) => {
                 let opts = GpuOptions::new(primary, camera_tr, &tracer.settings);
                 Beams::Gpu(Box::new(GpuBeams::new(

@@ -47,9 +47,9 @@ pub struct RenderSettings {
     /// The beams' kernel radius per pixel: eq. 3's everywhere, or chosen per pixel
     /// between it and its half (`film::error`).
     pub bandwidth: Bandwidth,
-    /// The beams' kernel across their direction; None: on the CPU with the hybrid method
-    /// the tube where a phase function is anisotropic ([`RenderSettings::cpu_beam_kernel`]),
-    /// else eq. 2's line, which the GPU's shader has only.
+    /// The beams' kernel across their direction; None: with the hybrid method the tube
+    /// where a phase function is anisotropic ([`RenderSettings::beam_kernel`]), else eq.
+    /// 2's line.
     pub beam_kernel: Option<BeamKernel>,
 }
 
@@ -135,11 +135,11 @@ pub struct Invalid {
 }
 
 impl RenderSettings {
-    /// The kernel the CPU's beam estimate uses in media whose phase functions' largest
+    /// The kernel the beam estimate (CPU or GPU) uses in media whose phase functions' largest
     /// |g| is `anisotropy`: the one asked for, else the tube where a phase function peaks
     /// ([`TUBE_FROM_G`]), or the paper's line (always with its pure method, so that
     /// `--method ppb` reproduces its tables).
-    pub fn cpu_beam_kernel(&self, anisotropy: f32) -> BeamKernel {
+    pub fn beam_kernel(&self, anisotropy: f32) -> BeamKernel {
         self.beam_kernel.unwrap_or(match self.method {
             Method::Hybrid if anisotropy >= TUBE_FROM_G => BeamKernel::Tube,
             _ => BeamKernel::Line,

@@ -436,7 +436,8 @@ fn adaptive_bandwidth_from_the_command_line() {
     let attr = |k: &str| header.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
     assert_eq!(attr("ppb/bandwidth").as_deref(), Some("adaptive"));
     assert!(attr("ppb/estimated_bias_rel_l1").is_some());
-    // The GPU's shader has eq. 2's line kernel only: both devices render with it here.
+    // Eq. 2's line on both devices, whose sums the GPU's gathered primaries share with the
+    // CPU's splat (under the tube each beam piece they cross draws its own point).
     let line_args = [
         "--beam-kernel",
         "line",

@@ -44,17 +44,16 @@ const PRIMARY: [PrimaryPath; 2] = [PrimaryPath::Raster, PrimaryPath::Gather];
 
 fn parity(
     scene: &str,
-    size: u32,
-    beams: usize,
+    (size, beams): (u32, usize),
     tr: TrMode,
     passes: &[u32],
-    primary: PrimaryPath,
+    (primary, kernel): (PrimaryPath, BeamKernel),
 ) -> Option<Parity> {
     let g = gpu_or_skip(scene)?;
     let file = load(&data(scene)).expect("scene loads");
     let mut s = file.settings.clone();
     (s.width, s.height, s.light_paths, s.tr_mode) = (size, size, beams, tr);
-    s.beam_kernel = Some(BeamKernel::Line);
+    s.beam_kernel = Some(kernel);
     let r = Tracer::new(&file.scene, s).expect("renderer");
     let opts = GpuOptions::new(primary, CameraTr::Steps, &r.settings);
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
@@ -67,9 +66,9 @@ fn parity(
     };
     for &i in passes {
         let t = r.trace(&r.plan().pass(i), None, MapNeed::GPU_EVERY_PASS);
-        let (cpu, evals) = r.beam_image(&t);
+        let (cpu, evals) = cpu_image(&r, &t, primary);
         est.clear().expect("clear");
-        est.submit(&t, r.media()).expect("submit");
+        est.submit(r.view(), &t).expect("submit");
         let gpu = est.read().expect("read back").0;
         // The GPU's segments end where they leave the media, so it counts no more pairs
         // than the CPU (beyond, the terms are 0).
@@ -90,6 +89,55 @@ fn parity(
         d.rel_l1(), d.off_pixels, d.lit_pixels, out.evaluations, out.gpu_evaluations, out.secondary
     );
     Some(out)
+}
+
+/// The CPU's beam image of pass `t` and its evaluations, with the primary segments through
+/// the beam pieces when the GPU gathers them. Under the tube kernel each piece draws its
+/// own point on its chord, so the splat's whole beams are another draw; under eq. 2's
+/// line both give the same sums.
+fn cpu_image(r: &Tracer, t: &TracedPass, primary: PrimaryPath) -> (Vec<Vec3>, u64) {
+    let (mut img, mut evals) = r.beam_image(t);
+    if primary == PrimaryPath::Gather && r.view().kernel == BeamKernel::Tube {
+        let (splat, splat_evals) = ppb::estimate::splat::splat(
+            r.camera(),
+            &t.camera.primaries,
+            &t.beams,
+            (t.beam_radius, BeamKernel::Tube),
+            r.media(),
+            ppb::core::simd::isa(),
+        );
+        let (gathered, gathered_evals) = gathered_primaries(r, t, BeamKernel::Tube);
+        for ((c, s), g) in img.iter_mut().zip(&splat).zip(&gathered) {
+            *c = *c - s.l + *g;
+        }
+        evals = evals - splat_evals + gathered_evals;
+    }
+    (img, evals)
+}
+
+/// Each primary segment's beam radiance through the pass's beam pieces (the BVH gather),
+/// and the evaluations.
+fn gathered_primaries(r: &Tracer, t: &TracedPass, kernel: BeamKernel) -> (Vec<Vec3>, u64) {
+    let map = t.beam_map.as_ref().expect("a beam map");
+    let (media, bounds) = (r.media(), r.media().bounds());
+    let mut evals = 0;
+    let img = t
+        .camera
+        .primaries
+        .iter()
+        .map(|p| {
+            let ray = Ray::new(r.camera().origin(), p.dir);
+            let end = p.tr.seen_until(p.t_surf);
+            let Some(t1) = ppb::estimate::beam_reach(bounds.as_ref(), &ray, end) else {
+                return Vec3::ZERO;
+            };
+            let scatter = |x, cos| media.in_scatter(x, cos);
+            let tr = |tt| ppb::transport::transmittance::camera_tr(&p.chords, &p.tr, tt);
+            map.nested_radiance(&ray, (0.0, t1), kernel, scatter, tr, &mut evals)
+                .l
+        })
+        .collect();
+    (img, evals)
 }
 
 /// Prints the first pixels that differ by more than `DeviceDiff`'s 1e-3 with the pairs each
@@ -122,7 +170,7 @@ fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what:
         let mut pairs = 0;
         let scatter = |x, cos| media.in_scatter(x, cos);
         let tr = |tt| ppb::transport::transmittance::camera_tr(&p.chords, &p.tr, tt);
-        let kernel = BeamKernel::Line;
+        let kernel = r.view().kernel;
         map.nested_radiance(&ray, (0.0, p.t_surf), kernel, scatter, tr, &mut pairs);
         let secondary = t
             .camera
@@ -142,13 +190,13 @@ fn explain_off(r: &Tracer, t: &TracedPass, cpu: &[Vec3], gpu: &[[f32; 4]], what:
 /// same pairs found by beam quads as by the BVH gather. None without an adapter.
 fn both_match_cpu(
     scene: &str,
-    tr: TrMode,
+    (tr, kernel): (TrMode, BeamKernel),
     passes: &[u32],
     enough: impl Fn(&Parity) -> bool,
 ) -> Option<()> {
     let mut runs = Vec::new();
     for primary in PRIMARY {
-        let p = parity(scene, 96, 20_000, tr, passes, primary)?;
+        let p = parity(scene, (96, 20_000), tr, passes, (primary, kernel))?;
         assert!(enough(&p), "{scene} {primary:?}: too little exercised");
         assert!(
             p.diff.off_pixels * 1000 <= p.diff.lit_pixels,
@@ -165,10 +213,17 @@ fn both_match_cpu(
     let [raster, gather] = &runs[..] else {
         unreachable!("two runs")
     };
-    assert_eq!(
-        raster.gpu_evaluations, gather.gpu_evaluations,
-        "{scene} {tr:?}: pairs found by beam quads and by the gather"
-    );
+    // The line's crossing lies on one piece of a beam; the tube's chord may cross several.
+    match kernel {
+        BeamKernel::Line => assert_eq!(
+            raster.gpu_evaluations, gather.gpu_evaluations,
+            "{scene} {tr:?}: pairs found by beam quads and by the gather"
+        ),
+        BeamKernel::Tube => assert!(
+            raster.gpu_evaluations <= gather.gpu_evaluations,
+            "{scene} {tr:?}: pairs found by beam quads and by the gather"
+        ),
+    }
     Some(())
 }
 
@@ -177,28 +232,34 @@ fn both_match_cpu(
 fn gpu_matches_cpu_on_smoke_grid() {
     let scene = "scenes/conformance/smoke-grid/scene.toml";
     for tr in [TrMode::Ratio, TrMode::Random] {
-        both_match_cpu(scene, tr, &[1, 7], |p| {
+        both_match_cpu(scene, (tr, BeamKernel::Line), &[1, 7], |p| {
             p.evaluations > 100_000 && p.diff.lit_pixels > 3000
         });
     }
 }
 
-/// A grid with tiles (the cloud's dense core), which the leaf table's slots name.
+/// A grid with tiles (the cloud's dense core), which the leaf table's slots name; both
+/// kernels (the tube is the hybrid default there: HG g = 0.7).
 #[test]
 fn gpu_matches_cpu_on_cloud_tiles() {
     let scene = "scenes/conformance/cloud-hg/scene.toml";
-    both_match_cpu(scene, TrMode::Ratio, &[1, 7], |p| {
-        p.evaluations > 50_000 && p.diff.lit_pixels > 1000
-    });
+    for kernel in [BeamKernel::Line, BeamKernel::Tube] {
+        both_match_cpu(scene, (TrMode::Ratio, kernel), &[1, 7], |p| {
+            p.evaluations > 50_000 && p.diff.lit_pixels > 1000
+        });
+    }
 }
 
-/// Glass: camera segments after refraction and reflection, weighted by Fresnel.
+/// Glass: camera segments after refraction and reflection, weighted by Fresnel; both
+/// kernels.
 #[test]
 fn gpu_matches_cpu_on_glass_caustic() {
     let scene = "scenes/conformance/glass-caustic/scene.toml";
-    both_match_cpu(scene, TrMode::Ratio, &[1, 3], |p| {
-        p.secondary > 1000 && p.evaluations > 500_000
-    });
+    for kernel in [BeamKernel::Line, BeamKernel::Tube] {
+        both_match_cpu(scene, (TrMode::Ratio, kernel), &[1, 3], |p| {
+            p.secondary > 1000 && p.evaluations > 500_000
+        });
+    }
 }
 
 /// `--gpu-primary auto` measures: a session rasterises pass 1, gathers pass 2, then keeps
@@ -314,7 +375,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
     let (cpu, _) = r.beam_image(&t);
     let opts = GpuOptions::new(PrimaryPath::Gather, CameraTr::Steps, &r.settings);
     let mut est = GpuBeams::new(g, r.media(), r.camera(), opts).expect("gpu");
-    est.submit(&t, r.media()).expect("submit");
+    est.submit(r.view(), &t).expect("submit");
     let mut diff = DeviceDiff::default();
     let gpu = est.read().expect("cloud-hg gathered").0;
     diff.add(&cpu, &gpu);
@@ -349,7 +410,7 @@ fn long_walks_match_the_cpu_and_a_cut_one_is_an_error() {
             ..GpuOptions::new(primary, CameraTr::Steps, &r.settings)
         };
         let mut est = GpuBeams::new(g.clone(), r.media(), r.camera(), opts).expect("gpu");
-        est.submit(&t, r.media()).expect("submit");
+        est.submit(r.view(), &t).expect("submit");
         let one_round = walk_budget.is_some();
         match est.read() {
             Ok((gpu, _)) => {
@@ -543,18 +604,20 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
     }
 }
 
-/// A GPU estimator of one pixel looking down +x from the origin, primaries gathered.
+/// One pixel looking down +x from the origin.
+fn one_pixel_camera() -> Pinhole {
+    let camera = Camera {
+        origin: Vec3::ZERO,
+        target: Vec3::X,
+        up: Vec3::Y,
+        vfov_deg: 30.0,
+    };
+    Pinhole::new(&camera, 1, 1)
+}
+
+/// A GPU estimator of [`one_pixel_camera`], primaries gathered.
 fn one_pixel_estimator(g: ppb::gpu::Gpu, media: &Media) -> GpuBeams {
-    let camera = Pinhole::new(
-        &Camera {
-            origin: Vec3::ZERO,
-            target: Vec3::X,
-            up: Vec3::Y,
-            vfov_deg: 30.0,
-        },
-        1,
-        1,
-    );
+    let camera = one_pixel_camera();
     let opts = GpuOptions {
         primary: PrimaryPath::Gather,
         camera_tr: CameraTr::Steps,
@@ -599,8 +662,14 @@ fn one_pixel_on_gpu(
         counters: Counters::default(),
         timings: Timings::default(),
     };
+    let camera = one_pixel_camera();
+    let view = ppb::estimate::View {
+        camera: &camera,
+        media,
+        kernel: BeamKernel::Line,
+    };
     est.clear().expect("clear");
-    est.submit(&pass, media).expect("submit");
+    est.submit(view, &pass).expect("submit");
     est.read().expect("read back").0[0]
 }
 
@@ -728,5 +797,55 @@ fn render_on_gpu_from_the_command_line() {
         "{err}"
     );
     assert!(!dir.join("none.exr").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `ppb render` of cloud-hg on the GPU with the default kernel: the tube (its HG g = 0.7),
+/// said so by `--stats` and the EXR header, and, with primaries rasterised (whole beams, as
+/// the CPU's splat), the image of the same render on the CPU within float32 rounding.
+#[test]
+fn gpu_renders_the_tube_from_the_command_line() {
+    if gpu_or_skip("gpu_renders_the_tube_from_the_command_line").is_none() {
+        return;
+    }
+    let dir = common::temp_dir("gpu", "tube");
+    let render = |device: &str| {
+        let (out, stats) = (
+            dir.join(format!("{device}.exr")),
+            dir.join(format!("{device}.json")),
+        );
+        let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
+            .args(["render", "--device", device, "--gpu-primary", "raster"])
+            .args(["--size", "48x32", "--passes", "4", "--light-paths", "20000"])
+            .args(["--quiet", "--cache-dir"])
+            .arg(dir.join("cache"))
+            .arg("-o")
+            .arg(&out)
+            .arg("--stats")
+            .arg(&stats)
+            .arg(data("scenes/conformance/cloud-hg/scene.toml"))
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        assert_eq!(json["beam_kernel"], "tube", "{device}: {json}");
+        let header = ppb::output::read_exr_text(&out).unwrap();
+        let kernel = header.iter().find(|(k, _)| k == "ppb/beam_kernel");
+        assert_eq!(kernel.map(|(_, v)| v.as_str()), Some("tube"), "{device}");
+        ppb::output::read_exr(&out).unwrap()
+    };
+    let (cpu, gpu) = (render("cpu"), render("gpu"));
+    let m = ppb::compare::compare(&gpu, &cpu, None).unwrap();
+    eprintln!("cloud-hg, tube: GPU against CPU rel_l1 {:.2e}", m.rel_l1);
+    assert!(
+        m.rel_l1 < 1e-5,
+        "the GPU's tube image differs: {}",
+        m.rel_l1
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

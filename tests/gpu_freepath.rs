@@ -442,8 +442,13 @@ fn beam_estimate_tracks_camera_transmittance() {
                 counters: Counters::default(),
                 timings: Timings::default(),
             };
+            let view = ppb::estimate::View {
+                camera: &camera,
+                media: &media,
+                kernel: ppb::estimate::eq2::BeamKernel::Line,
+            };
             est.clear().expect("clear");
-            est.submit(&pass, &media).expect("submit");
+            est.submit(view, &pass).expect("submit");
             let img = est.read().expect("read back").0;
             assert!(
                 img.iter().all(|p| p[3] == 1.0),

@@ -180,7 +180,8 @@ fn watch_on_the_gpu_matches_watch_on_the_cpu() {
                [[medium]]\ntype = \"homogeneous\"\nbounds = [[-1, 0.25, -1], [1, 1.75, 1]]\n\
                sigma_t = 1.0\nalbedo = [0.8, 0.8, 0.8]\n";
     let scene = dir.join("scene.toml");
-    // The GPU's shader has eq. 2's line kernel only: the CPU renders with it too.
+    // Eq. 2's line, whose sums the GPU's gathered primaries share with the CPU's splat
+    // (under the tube each beam piece they cross draws its own point on its chord).
     let render =
         "width = 32\nheight = 24\npasses = 100\nlight_paths = 4000\nbeam_kernel = \"line\"";
     std::fs::write(&scene, floor_scene(render, 0.5, fog)).unwrap();

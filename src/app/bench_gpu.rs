@@ -82,7 +82,7 @@ impl Estimator for Race {
             let run = |gpu: &mut GpuBeams| -> PpbResult<(f64, Vec<[f32; 4]>)> {
                 gpu.clear()?;
                 let start = Instant::now();
-                gpu.submit(t, view.media)?;
+                gpu.submit(view, t)?;
                 let done = gpu.wait()?.map_or_else(Instant::now, |t| t.done);
                 Ok(((done - start).as_secs_f64(), gpu.read()?.0))
             };
@@ -132,7 +132,8 @@ pub fn bench_gpu(args: BenchGpuArgs) -> Result<ExitCode> {
     for scene in &args.bench.scenes {
         let file = args.bench.load(scene)?;
         let mut s = args.bench.settings(&file)?;
-        // The GPU's shader has eq. 2's line kernel only: the CPU side must match it.
+        // Eq. 2's line, whose gathered and rasterised sums both equal the CPU splat's (under
+        // the tube each beam piece a gathered primary crosses draws its own point).
         s.beam_kernel = Some(ppb::settings::BeamKernel::Line);
         let tracer = Tracer::new(&file.scene, s.clone())?;
         let Some(gpu) = super::open_device(args.device, true)? else {

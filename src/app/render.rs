@@ -498,6 +498,7 @@ fn open_session<'a>(
     let meta = FrameMeta {
         args,
         settings,
+        kernel: tracer.view().kernel,
         camera: *tracer.camera(),
         frame: job.frame,
         scene_hash: match &target.part {
@@ -727,6 +728,7 @@ fn resume(session: &mut Session, p: Part, progress: &Progress, quiet: bool) -> R
 struct FrameMeta<'a> {
     args: &'a RenderArgs,
     settings: &'a RenderSettings,
+    kernel: BeamKernel,
     camera: Pinhole,
     frame: Option<u32>,
     scene_hash: String,
@@ -737,6 +739,7 @@ impl FrameMeta<'_> {
         let mut m = OutputMeta {
             scene: &self.args.scene,
             settings: self.settings,
+            kernel: self.kernel,
             passes,
             seconds,
             extra: &[],
@@ -894,11 +897,7 @@ fn write_stats(
         counters: session.counters,
         device: session.device(),
         simd: ppb::core::simd::isa().name(),
-        // The GPU's shader has the line kernel only (`Session::open`).
-        beam_kernel: match session.gpu_stats() {
-            Some(_) => BeamKernel::Line,
-            None => t.view().kernel,
-        },
+        beam_kernel: t.view().kernel,
         gpu: session.gpu_stats(),
         estimated_rel_l1,
     };

@@ -551,6 +551,7 @@ impl Worker {
         let meta = OutputMeta {
             scene: &self.args.scene,
             settings: &settings,
+            kernel: cur.session.tracer().view().kernel,
             passes: cur.session.passes(),
             seconds: self.seconds(),
             extra,

@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::beams::{BeamMap, MapNeed};
 use super::eq2::BeamKernel;
 use super::splat::splat;
-use super::{Estimator, TracedPass, View};
+use super::{beam_reach, Estimator, TracedPass, View};
 use crate::core::simd;
 use crate::core::Nested;
 use crate::core::Rgb;
@@ -16,6 +16,7 @@ use crate::film::{Film, Held};
 use crate::media::Media;
 use crate::transport::camera::Secondary;
 use crate::transport::transmittance::camera_tr;
+use glam::Vec3;
 
 /// The beam estimate on the CPU, added to the film pass by pass.
 pub struct CpuBeams;
@@ -72,10 +73,11 @@ pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
     let isa = simd::isa();
     let (mut img, mut evals) = splat(camera, &pass.primaries, beams, (radius, kernel), media, isa);
     if let Some(map) = &t.beam_map {
+        let bounds = media.bounds();
         let per_segment: Vec<(Nested, u64)> = pass
             .secondary
             .par_iter()
-            .map(|s| secondary_radiance(media, map, kernel, s))
+            .map(|s| secondary_radiance(media, bounds.as_ref(), (map, kernel), s))
             .collect();
         for (s, (l, e)) in pass.secondary.iter().zip(per_segment) {
             img[s.pixel as usize] += l;
@@ -88,17 +90,17 @@ pub fn nested_beam_image(view: View, t: &TracedPass) -> (Vec<Nested>, u64) {
 /// beta times the beams' in-scattered radiance along one secondary segment.
 fn secondary_radiance(
     media: &Media,
-    map: &BeamMap,
-    kernel: BeamKernel,
+    bounds: Option<&[Vec3; 2]>,
+    (map, kernel): (&BeamMap, BeamKernel),
     s: &Secondary,
 ) -> (Nested, u64) {
     let ray = &s.ray;
     let mut evals = 0;
     let mut l = Nested::default();
-    for span in media.spans(ray, s.tr.seen_until(s.t_surf)) {
+    if let Some(t1) = beam_reach(bounds, ray, s.tr.seen_until(s.t_surf)) {
         let tr = |t| camera_tr(&s.chords, &s.tr, t);
         let scatter = |x, cos| media.in_scatter(x, cos);
-        l += map.nested_radiance(ray, span, kernel, scatter, tr, &mut evals);
+        l += map.nested_radiance(ray, (0.0, t1), kernel, scatter, tr, &mut evals);
     }
     (s.beta * l, evals)
 }

@@ -13,6 +13,9 @@ pub mod tube;
 
 use std::time::Instant;
 
+use glam::Vec3;
+
+use crate::core::{ray_box, Ray};
 use crate::error::Result;
 use crate::film::{Film, Held};
 use crate::media::Media;
@@ -20,6 +23,14 @@ use crate::transport::camera::{CameraPass, Pinhole};
 use crate::transport::{Beam, Counters};
 use beams::{BeamMap, MapNeed};
 use eq2::BeamKernel;
+
+/// Where a camera segment [0, t_end) stops gathering beams: where it leaves `bounds`, the
+/// box of every medium (None: it misses the box, and gathers nothing). Beyond, every
+/// term is 0; cut there, the tube kernel's chords and their points stay in the media, and
+/// the CPU and the GPU (whose segments end there) draw the same points.
+pub fn beam_reach(bounds: Option<&[Vec3; 2]>, ray: &Ray, t_end: f32) -> Option<f32> {
+    ray_box(ray, bounds?, 0.0, t_end).map(|(_, t1)| t1)
+}
 
 /// Wall-clock seconds of one pass's stages.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -64,7 +75,7 @@ pub struct TracedPass {
 pub struct View<'a> {
     pub camera: &'a Pinhole,
     pub media: &'a Media,
-    /// The CPU's beam kernel.
+    /// The beam kernel.
     pub kernel: BeamKernel,
 }
 

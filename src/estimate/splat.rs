@@ -12,6 +12,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::beam_reach;
 use super::eq2::{pair_term, BeamKernel, BeamPiece, Crossing};
 use super::lanes::{Fixed, Rays};
 use crate::core::simd::Isa;
@@ -69,11 +70,15 @@ pub fn splat(
         }
     }
     // Crossings past where a segment's transmittance estimate is 0 weigh nothing.
-    let rays = Rays::new(
-        primaries
-            .par_iter()
-            .map(|p| (p.dir, p.tr.seen_until(p.t_surf))),
-    );
+    let bounds = media.bounds();
+    let rays = Rays::new(primaries.par_iter().map(|p| {
+        let reach = beam_reach(
+            bounds.as_ref(),
+            &Ray::new(origin, p.dir),
+            p.tr.seen_until(p.t_surf),
+        );
+        (p.dir, reach.unwrap_or(0.0))
+    }));
     let seen = Seen::new(&rays, w, h);
     let mut img = vec![Nested::default(); w * h];
     // Each band writes its rows of the image in place: no serial assembly after.

@@ -18,7 +18,7 @@ use glam::Vec3;
 use super::eq2::{BeamPiece, Crossing, Lines};
 use crate::core::Ray;
 use crate::core::Rgb;
-use crate::sampling::mix64;
+use crate::sampling::hash_unit;
 
 /// A pair's chord: the part of the camera segment within r of the piece's axis and
 /// between its end planes, [lo, hi) (it counts when lo < hi, see [`counts`]), with the
@@ -103,16 +103,26 @@ pub(crate) fn piece_chord(ray: &Ray, piece: &BeamPiece, span: (f32, f32), r: f32
     chord(o, w, piece.origin, piece.dir, span, (piece.s0, piece.s1), r)
 }
 
-/// A uniform number in [0, 1) for a pair, from its chord's and its piece's bits (two
-/// pieces whose chords are both cut to a pixel's whole segment share the chord): the same
-/// pair gets the same number on every thread, lane count and walker, and the pairs of a
-/// pass (whose rays are jittered) get numbers as good as independent of each other and of
-/// the integrand along the chord.
+/// A uniform number in [0, 1) for a pair, from its camera ray's and its piece's bits
+/// (the pieces of one beam differ in s0): the same pair gets the same number on every
+/// thread, lane count, walker and device (`shaders/beam_estimate.wgsl` hashes the same
+/// words), and the pairs of a pass (whose rays are jittered) get numbers as good as
+/// independent of each other and of the integrand along the chord.
 #[inline(always)]
-fn pair_u((lo, hi): (f32, f32), piece: &BeamPiece) -> f32 {
-    let ends = ((lo.to_bits() as u64) << 32) | hi.to_bits() as u64;
-    let z = mix64(ends ^ (piece.origin[0].to_bits() as u64).rotate_left(16));
-    (z >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+fn pair_u(ray: &Ray, piece: &BeamPiece) -> f32 {
+    let (o, w, y) = (ray.o, ray.d, piece.origin);
+    hash_unit(&[
+        o.x.to_bits(),
+        o.y.to_bits(),
+        o.z.to_bits(),
+        w.x.to_bits(),
+        w.y.to_bits(),
+        w.z.to_bits(),
+        y[0].to_bits(),
+        y[1].to_bits(),
+        y[2].to_bits(),
+        piece.s0.to_bits(),
+    ])
 }
 
 /// The tube's term for a pair that counts, its chord in `c` ([`pair`]), and whether its
@@ -128,7 +138,7 @@ pub fn counted_term(
     tr: impl Fn(f32) -> f32,
 ) -> (Rgb, bool) {
     let chord = (c.lo, c.hi);
-    term_at(ray, piece, chord, r, pair_u(chord, piece), in_scatter, tr)
+    term_at(ray, piece, chord, r, pair_u(ray, piece), in_scatter, tr)
 }
 
 /// [`counted_term`] at the chord's point lo + u (hi - lo).
@@ -232,29 +242,67 @@ mod tests {
         assert!(counted[0] > 100 && counted[1] > 50, "{counted:?}");
     }
 
-    /// The pairs' numbers are uniform: the counted pairs of 100,000 random ones in 20 bins, chi-square
-    /// below its 99.9th percentile (43.8 for 19 degrees of freedom).
+    /// Chi-square of numbers in [0, 1) in 20 bins, against its 99.9th percentile (43.8 for
+    /// 19 degrees of freedom).
+    fn assert_uniform(u: &[f32]) {
+        let mut bins = [0u32; 20];
+        for &u in u {
+            assert!((0.0..1.0).contains(&u));
+            bins[(u * 20.0) as usize] += 1;
+        }
+        let e = u.len() as f64 / 20.0;
+        let chi2: f64 = bins.iter().map(|&b| (b as f64 - e).powi(2) / e).sum();
+        assert!(chi2 < 43.8, "{chi2} {bins:?}");
+    }
+
+    /// The pairs' numbers are uniform: the counted pairs of 100,000 random pieces along
+    /// one ray.
     #[test]
     fn pair_numbers_are_uniform() {
         let mut rng = Rng::new(11, 4);
-        let mut bins = [0u32; 20];
-        let mut counted = 0;
+        let mut u = Vec::new();
         for _ in 0..100_000 {
             let (ray, piece) = random_pair(&mut rng, 0.1, 0.0);
-            let ch = piece_chord(&ray, &piece, (0.0, 3.0), 0.1);
-            if !ch.counts(0.1) {
-                continue;
+            if piece_chord(&ray, &piece, (0.0, 3.0), 0.1).counts(0.1) {
+                u.push(pair_u(&ray, &piece));
             }
-            let u = pair_u((ch.lo, ch.hi), &piece);
-            assert!((0.0..1.0).contains(&u));
-            bins[(u * 20.0) as usize] += 1;
-            counted += 1;
         }
-        assert!(counted > 30_000, "{counted}");
-        let n = counted;
-        let e = n as f64 / 20.0;
-        let chi2: f64 = bins.iter().map(|&b| (b as f64 - e).powi(2) / e).sum();
-        assert!(chi2 < 43.8, "{chi2} {bins:?}");
+        assert!(u.len() > 30_000, "{}", u.len());
+        assert_uniform(&u);
+    }
+
+    /// The numbers of one piece's pairs with the rays of neighbouring pixels (a regular
+    /// 400 x 400 grid of directions, whose bits differ least) are uniform, and those of
+    /// horizontal neighbours uncorrelated: the sample correlation within 4.5 of its
+    /// standard error 1/sqrt(n).
+    #[test]
+    fn neighbouring_pixels_get_independent_numbers() {
+        let piece = piece(Vec3::new(-0.1, 0.0, 1.0), Vec3::X, 0.2, 1.0);
+        let n = 400;
+        let mut rows = Vec::new();
+        for y in 0..n {
+            let row: Vec<Option<f32>> = (0..n)
+                .map(|x| {
+                    let at = |i: usize| (i as f32 + 0.5) / n as f32 * 0.3 - 0.15;
+                    let ray = Ray::new(Vec3::ZERO, Vec3::new(at(x), at(y), 1.0).normalize());
+                    let counts = piece_chord(&ray, &piece, (0.0, 3.0), 0.05).counts(0.05);
+                    counts.then(|| pair_u(&ray, &piece))
+                })
+                .collect();
+            rows.push(row);
+        }
+        let all: Vec<f32> = rows.iter().flatten().flatten().copied().collect();
+        assert!(all.len() > 20_000, "{}", all.len());
+        assert_uniform(&all);
+        let pairs: Vec<(f64, f64)> = rows
+            .iter()
+            .flat_map(|r| r.windows(2))
+            .filter_map(|w| Some((w[0]? as f64 - 0.5, w[1]? as f64 - 0.5)))
+            .collect();
+        let m = pairs.len() as f64;
+        let cov = pairs.iter().map(|(a, b)| a * b).sum::<f64>() / m;
+        let corr = cov / (1.0 / 12.0);
+        assert!(corr.abs() < 4.5 / m.sqrt(), "{corr} over {m} pairs");
     }
 
     /// The term's mean over its uniform point is the chord integral of sigma_s f Tr (the

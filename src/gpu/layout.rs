@@ -4,10 +4,10 @@
 //! [`crate::estimate::eq2::BeamPiece`] and [`crate::estimate::beams::BvhNode`].
 use bytemuck::{Pod, Zeroable};
 
-use crate::core::ray_box;
 use crate::core::Ray;
 use crate::error::{Error, Result};
-use crate::estimate::eq2::BeamPiece;
+use crate::estimate::beam_reach;
+use crate::estimate::eq2::{BeamKernel, BeamPiece};
 use crate::majorant::{Mode, Node};
 use crate::media::grid::{Grid, SEARCH_SLOT};
 use crate::media::{GridMedium, Media};
@@ -68,7 +68,8 @@ pub struct Params {
     /// thousand on software adapters, which end an invocation's loops after 65,535
     /// iterations in all; longer walks resume in further rounds.
     pub walk_budget: u32,
-    pub _pad: u32,
+    /// The beam kernel: 0 eq. 2's line, 1 the tube ([`kernel_word`]).
+    pub kernel: u32,
     pub boxes: [MediumBox; MAX_BOXES],
     pub grids: [GridMeta; MAX_GRIDS],
 }
@@ -119,7 +120,7 @@ pub fn media_params(media: &Media) -> Result<(Params, Vec<u32>)> {
         pass_seed: 0,
         track_tr: 0,
         walk_budget: u32::MAX,
-        _pad: 0,
+        kernel: kernel_word(BeamKernel::Line),
         boxes: [MediumBox::default(); MAX_BOXES],
         grids: [GridMeta::default(); MAX_GRIDS],
     };
@@ -289,7 +290,7 @@ impl SegmentUpload {
     ) -> Option<Segment> {
         // With the steps, as on the CPU: nothing past where the estimate is 0.
         let t_end = tr.map_or(t_surf, |tr| tr.seen_until(t_surf));
-        let (_, t1) = ray_box(&ray, b, 0.0, t_end)?;
+        let t1 = beam_reach(Some(b), &ray, t_end)?;
         let tr_first = self.tr_steps.len() as u32;
         if let Some(tr) = tr {
             tr.steps(&mut self.tr_steps);
@@ -317,6 +318,13 @@ pub struct Octrees {
     /// 0: adaptive (the octree's leaves), 1: Woodcock.
     pub mode: u32,
     pub _pad: [u32; 3],
+}
+
+pub(crate) fn kernel_word(kernel: BeamKernel) -> u32 {
+    match kernel {
+        BeamKernel::Line => 0,
+        BeamKernel::Tube => 1,
+    }
 }
 
 pub(crate) fn mode_word(mode: Mode) -> u32 {

@@ -37,7 +37,7 @@ use super::buffers::{
     READ, READ_WRITE, UNIFORM,
 };
 use super::layout::{
-    media_params, mode_word, octree_upload, BeamQuad, Chunk, Params, SegmentUpload,
+    kernel_word, media_params, mode_word, octree_upload, BeamQuad, Chunk, Params, SegmentUpload,
 };
 use super::{compute_pipelines, Gpu};
 use crate::error::{Error, Result};
@@ -249,9 +249,11 @@ impl GpuBeams {
         &self.stats
     }
 
-    /// Uploads pass `t` and dispatches its estimate into the accumulator; returns the
-    /// previous pass's timing (after waiting for it) if one was in flight.
-    pub fn submit(&mut self, t: &TracedPass, media: &Media) -> Result<Option<GpuTiming>> {
+    /// Uploads pass `t` and dispatches its estimate under `view`'s media and kernel into
+    /// the accumulator; returns the previous pass's timing (after waiting for it) if one
+    /// was in flight.
+    pub fn submit(&mut self, view: View, t: &TracedPass) -> Result<Option<GpuTiming>> {
+        let media = view.media;
         let prev = self.wait()?;
         self.passes += 1;
         let start = Instant::now();
@@ -260,6 +262,7 @@ impl GpuBeams {
         if t.beams.is_empty() || media.is_empty() || (!raster && t.beam_map.is_none()) {
             return Ok(prev);
         }
+        self.params.kernel = kernel_word(view.kernel);
         let (n_segs, quads) = self.upload(t, media, raster)?;
         self.odd = t.odd;
         let seg_chunks = chunks(n_segs);
@@ -575,7 +578,7 @@ impl Estimator for GpuBeams {
         _film: &mut Film,
         traced: (Instant, Instant),
     ) -> Result<u64> {
-        let prev = self.submit(t, view.media)?;
+        let prev = self.submit(view, t)?;
         self.stats.record(prev, Some(traced));
         Ok(0)
     }
