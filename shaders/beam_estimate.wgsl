@@ -199,11 +199,11 @@ fn pair_u(seg: Segment, p: BeamPiece) -> f32 {
         bitcast<u32>(p.origin.x), bitcast<u32>(p.origin.y), bitcast<u32>(p.origin.z),
         bitcast<u32>(p.s0),
     );
-    var h = 0x9e3779b9u;
+    var h = 0u;
     for (var i = 0u; i < 10u; i++) {
-        h = pcg_hash(h ^ words[i]);
+        h += words[i] * (pcg_hash(i + 1u) | 1u);
     }
-    return f32(h >> 8u) * (1.0 / 16777216.0);
+    return f32(pcg_hash(pcg_hash(h)) >> 8u) * (1.0 / 16777216.0);
 }
 
 // The tube kernel's term (`estimate::tube::counted_term`) at the pair's point on its chord,

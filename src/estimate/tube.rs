@@ -111,7 +111,7 @@ pub(crate) fn piece_chord(ray: &Ray, piece: &BeamPiece, span: (f32, f32), r: f32
 #[inline(always)]
 fn pair_u(ray: &Ray, piece: &BeamPiece) -> f32 {
     let (o, w, y) = (ray.o, ray.d, piece.origin);
-    hash_unit(&[
+    hash_unit([
         o.x.to_bits(),
         o.y.to_bits(),
         o.z.to_bits(),
