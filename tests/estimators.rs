@@ -1,4 +1,7 @@
 //! Estimators against closed forms, and thread-count independence.
+mod common;
+
+use common::splat_pass;
 use glam::Vec3;
 
 use ppb::media::{Media, MediumDesc, Phase};
@@ -147,14 +150,7 @@ fn splat_finds_every_pair_the_gather_finds() {
         let r = Tracer::new(&file.scene, s).expect("tracer");
         for i in [1, 40] {
             let t = r.trace(&r.plan().pass(i), None, MapNeed::CPU);
-            let (splat, splat_evals) = ppb::estimate::splat::splat(
-                r.camera(),
-                &t.camera.primaries,
-                &t.beams,
-                (t.beam_radius, BeamKernel::Line),
-                r.media(),
-                ppb::core::simd::isa(),
-            );
+            let (splat, splat_evals) = splat_pass(&r, &t, &t.beams, BeamKernel::Line);
             let media = r.media();
             for walker in [Walker::Cpu, Walker::Gpu] {
                 let map = BeamMap::build(&t.beams, t.beam_radius, walker);
@@ -215,14 +211,7 @@ fn splat_finds_every_tube_pair() {
         let (file, s) = small_public(scene);
         let r = Tracer::new(&file.scene, s).expect("tracer");
         let t = r.trace(&r.plan().pass(1), None, MapNeed::CPU);
-        let (_, evals) = ppb::estimate::splat::splat(
-            r.camera(),
-            &t.camera.primaries,
-            &t.beams,
-            (t.beam_radius, BeamKernel::Tube),
-            r.media(),
-            ppb::core::simd::isa(),
-        );
+        let (_, evals) = splat_pass(&r, &t, &t.beams, BeamKernel::Tube);
         let o = r.camera().origin();
         let brute: u64 = t
             .camera
@@ -294,14 +283,7 @@ fn beams_cut_to_the_density_keep_the_image() {
             );
             let whole = beams(&media.support(0.0));
             let splat = |beams: &[ppb::transport::Beam]| {
-                ppb::estimate::splat::splat(
-                    r.camera(),
-                    &t.camera.primaries,
-                    beams,
-                    (t.beam_radius, ppb::estimate::eq2::BeamKernel::Line),
-                    media,
-                    ppb::core::simd::isa(),
-                )
+                splat_pass(&r, &t, beams, ppb::estimate::eq2::BeamKernel::Line)
             };
             let ((a, a_evals), (b, b_evals)) = (splat(&cut), splat(&whole));
             let (mut diff, mut total) = (0.0f64, 0.0f64);

@@ -98,14 +98,7 @@ fn parity(
 fn cpu_image(r: &Tracer, t: &TracedPass, primary: PrimaryPath) -> (Vec<Vec3>, u64) {
     let (mut img, mut evals) = r.beam_image(t);
     if primary == PrimaryPath::Gather && r.view().kernel == BeamKernel::Tube {
-        let (splat, splat_evals) = ppb::estimate::splat::splat(
-            r.camera(),
-            &t.camera.primaries,
-            &t.beams,
-            (t.beam_radius, BeamKernel::Tube),
-            r.media(),
-            ppb::core::simd::isa(),
-        );
+        let (splat, splat_evals) = common::splat_pass(r, t, &t.beams, BeamKernel::Tube);
         let (gathered, gathered_evals) = gathered_primaries(r, t, BeamKernel::Tube);
         for ((c, s), g) in img.iter_mut().zip(&splat).zip(&gathered) {
             *c = *c - s.l + *g;
@@ -832,27 +825,17 @@ fn render_on_gpu_from_the_command_line() {
     }
     let dir = common::temp_dir("gpu", "cli");
     let out = dir.join("smoke.exr");
-    let stats = dir.join("stats.json");
-    let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
-        .args([
-            "render", "--device", "gpu", "--size", "32x32", "--passes", "6",
-        ])
-        .args(["--light-paths", "2000", "--quiet", "--cache-dir"])
-        .arg(dir.join("cache"))
-        .arg("-o")
-        .arg(&out)
-        .arg("--stats")
-        .arg(&stats)
-        .arg(data("scenes/conformance/smoke-grid/scene.toml"))
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let args = [
+        "--device",
+        "gpu",
+        "--size",
+        "32x32",
+        "--passes",
+        "6",
+        "--light-paths",
+        "2000",
+    ];
+    let json = render_with_stats(&dir, "smoke-grid", &args, &out);
     let g = &json["gpu"];
     assert_eq!(g["passes"], 6, "{json}");
     assert!(g["estimate_seconds"].as_f64().unwrap() > 0.0);
@@ -888,6 +871,27 @@ fn render_on_gpu_from_the_command_line() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `ppb render` of conformance scene `scene` with `args`, its cache in `dir`, into `out`;
+/// it must succeed. Returns its `--stats`.
+fn render_with_stats(dir: &Path, scene: &str, args: &[&str], out: &Path) -> serde_json::Value {
+    let stats = out.with_extension("json");
+    let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
+        .arg("render")
+        .args(args)
+        .args(["--quiet", "--cache-dir"])
+        .arg(dir.join("cache"))
+        .arg("-o")
+        .arg(out)
+        .arg("--stats")
+        .arg(&stats)
+        .arg(data(&format!("scenes/conformance/{scene}/scene.toml")))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap()
+}
+
 /// `ppb render` of cloud-hg on the GPU with the default kernel: the tube (its HG g = 0.7),
 /// said so by `--stats` and the EXR header, and, with primaries rasterised (whole beams, as
 /// the CPU's splat), the image of the same render on the CPU within float32 rounding.
@@ -898,29 +902,17 @@ fn gpu_renders_the_tube_from_the_command_line() {
     }
     let dir = common::temp_dir("gpu", "tube");
     let render = |device: &str| {
-        let (out, stats) = (
-            dir.join(format!("{device}.exr")),
-            dir.join(format!("{device}.json")),
-        );
-        let run = Command::new(env!("CARGO_BIN_EXE_ppb"))
-            .args(["render", "--device", device, "--gpu-primary", "raster"])
-            .args(["--size", "48x32", "--passes", "4", "--light-paths", "20000"])
-            .args(["--quiet", "--cache-dir"])
-            .arg(dir.join("cache"))
-            .arg("-o")
-            .arg(&out)
-            .arg("--stats")
-            .arg(&stats)
-            .arg(data("scenes/conformance/cloud-hg/scene.toml"))
-            .output()
-            .unwrap();
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
-        let json: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        let out = dir.join(format!("{device}.exr"));
+        let args = [
+            "--device",
+            device,
+            "--gpu-primary",
+            "raster",
+            "--size",
+            "48x32",
+        ];
+        let args = [&args[..], &["--passes", "4", "--light-paths", "20000"]].concat();
+        let json = render_with_stats(&dir, "cloud-hg", &args, &out);
         assert_eq!(json["beam_kernel"], "tube", "{device}: {json}");
         let header = ppb::output::read_exr_text(&out).unwrap();
         let kernel = header.iter().find(|(k, _)| k == "ppb/beam_kernel");

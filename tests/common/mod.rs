@@ -61,3 +61,21 @@ pub fn gpu_or_skip(test: &str) -> Option<Gpu> {
         }
     }
 }
+
+/// The CPU splat of pass `t`'s primary segments under `kernel`, over `beams` (the pass's
+/// own, or others), with this machine's lanes: per-pixel sums and evaluations.
+pub fn splat_pass(
+    r: &ppb::pass::Tracer,
+    t: &ppb::estimate::TracedPass,
+    beams: &[ppb::transport::Beam],
+    kernel: ppb::estimate::eq2::BeamKernel,
+) -> (Vec<ppb::core::Nested>, u64) {
+    ppb::estimate::splat::splat(
+        r.camera(),
+        &t.camera.primaries,
+        beams,
+        (t.beam_radius, kernel),
+        r.media(),
+        ppb::core::simd::isa(),
+    )
+}
