@@ -217,7 +217,8 @@ fn tube_radiance(seg: Segment, inv: vec3<f32>, p: BeamPiece) -> Term {
         let t = ch.lo + pair_u(seg, p) * (ch.hi - ch.lo);
         let x = seg.origin + seg.dir * t;
         let off = x - p.origin;
-        let inner = 4.0 * dot(off - p.dir * dot(off, p.dir), off - p.dir * dot(off, p.dir)) < r * r;
+        let across = off - p.dir * dot(off, p.dir);
+        let inner = 4.0 * dot(across, across) < r * r;
         let f = in_scatter(x, dot(p.dir, -seg.dir));
         let area = PI * r * r;
         let l = f * p.power * ((ch.hi - ch.lo) * camera_tr(seg, inv, t) / area);
