@@ -15,7 +15,11 @@
 #      the camera transmittance tracked on the GPU (--gpu-tr track), then on the CPU, with
 #      --stats; the GPU images compared with the CPU's (rel_l1: float rounding for the
 #      first two, noise for the tracked run, which draws its own transmittance)
-#   4. ppb bench-gpu on the four public conformance scenes at full resolution
+#   4. the tube kernel: cloud-hg (HG g = 0.7, where the hybrid method's auto kernel is the
+#      tube) at the same size, paths and passes, primary segments rasterised on the GPU,
+#      then on the CPU; the images compared (float rounding: both devices draw the same
+#      point on each chord)
+#   5. ppb bench-gpu on the four public conformance scenes at full resolution
 # Then one table: adapter, ms per pass on each device, their ratio, the GPU-vs-CPU
 # difference, the time split of a pipelined GPU pass (estimate, overlap with the next
 # pass's tracing, wait, upload), beam evaluations per second; and bench-gpu's table.
@@ -32,7 +36,7 @@ QUICK=0
 case "${1:-}" in
   --quick) QUICK=1 ;;
   "") ;;
-  -h | --help) sed -n '2,27p' "$0"; exit 0 ;;
+  -h | --help) sed -n '2,31p' "$0"; exit 0 ;;
   *) echo "gpu_check: unknown argument $1 (--quick or nothing)" >&2; exit 2 ;;
 esac
 OUT=${OUT:-out/gpu_check}
@@ -106,6 +110,18 @@ for scene in "${SCENES[@]}"; do
   done
 done
 
+TUBE=scenes/conformance/cloud-hg/scene.toml
+for run in gpu cpu; do
+  case $run in
+    gpu) device=(--device gpu --gpu-primary raster) ;;
+    cpu) device=(--device cpu) ;;
+  esac
+  step "tube-cloud-hg-$run" "$PPB" render "$TUBE" "${device[@]}" \
+    --size "$SIZE" --light-paths "$PATHS" --passes "$PASSES" --quiet \
+    --stats "$OUT/tube-cloud-hg-$run.json" -o "$OUT/tube-cloud-hg-$run.exr"
+done
+step compare-tube-cloud-hg "$PPB" compare "$OUT/tube-cloud-hg-gpu.exr" "$OUT/tube-cloud-hg-cpu.exr"
+
 PUBLIC=()
 for s in fog-box smoke-grid cloud-hg glass-caustic; do PUBLIC+=("scenes/conformance/$s/scene.toml"); done
 step bench-gpu "$PPB" bench-gpu "${PUBLIC[@]}" --device gpu "${BENCH[@]}"
@@ -159,6 +175,16 @@ print(f"(ms/pass = the render's total wall time / passes, scene load and octree 
       f"GPU est = beam estimate on the device; overlap = its time hidden behind the next "
       f"pass's light tracing; wait = the CPU waiting for it)")
 print(f"adapter: {adapter}")
+try:
+    t = {run: json.load(open(f"{out}/tube-cloud-hg-{run}.json")) for run in ("gpu", "cpu")}
+    m = re.search(r"^rel_l1\s+([0-9.eE+-]+)", open(f"{out}/compare-tube-cloud-hg.log").read(), re.M)
+    ms = {k: 1e3 * v["seconds"]["total"] / max(v["passes"], 1) for k, v in t.items()}
+    print(f"tube kernel, cloud-hg ({t['gpu']['beam_kernel']} on the GPU, {t['cpu']['beam_kernel']} "
+          f"on the CPU): {ms['cpu']:.1f} ms/pass on the CPU, {ms['gpu']:.1f} on the GPU, "
+          f"rel_l1 GPU-CPU {m.group(1) if m else 'n/a'}")
+except (OSError, ValueError, KeyError):
+    print(f"tube kernel: missing stats, see {out}/tube-cloud-hg-*.log")
+    ok = False
 if adapter and "(Cpu)" in adapter and not quick and os.environ.get("ALLOW_SOFTWARE") != "1":
     print("gpu_check: the adapter is a software rasterizer; its times say nothing about a GPU "
           "(ALLOW_SOFTWARE=1 to accept)")
