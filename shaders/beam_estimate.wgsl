@@ -191,18 +191,17 @@ fn tube_chord(seg: Segment, p: BeamPiece, r: f32) -> Chord {
     return Chord(lo, hi, counts);
 }
 
-// `tube::pair_u`: the pair's uniform number from the segment's ray and the piece's bits.
+// `tube::pair_u`: the pair's uniform number from the segment's ray and the piece's bits,
+// `sampling::hash_unit` with its first ten `HASH_WEIGHTS` as literals (the gpu module's
+// tests check them).
 fn pair_u(seg: Segment, p: BeamPiece) -> f32 {
-    let words = array<u32, 10>(
-        bitcast<u32>(seg.origin.x), bitcast<u32>(seg.origin.y), bitcast<u32>(seg.origin.z),
-        bitcast<u32>(seg.dir.x), bitcast<u32>(seg.dir.y), bitcast<u32>(seg.dir.z),
-        bitcast<u32>(p.origin.x), bitcast<u32>(p.origin.y), bitcast<u32>(p.origin.z),
-        bitcast<u32>(p.s0),
-    );
-    var h = 0u;
-    for (var i = 0u; i < 10u; i++) {
-        h += words[i] * (pcg_hash(i + 1u) | 1u);
-    }
+    let o = bitcast<vec3<u32>>(seg.origin);
+    let w = bitcast<vec3<u32>>(seg.dir);
+    let y = bitcast<vec3<u32>>(p.origin);
+    let h = o.x * 0xa8beea3du + o.y * 0x7a7ecc89u + o.z * 0x7f0ef6bdu
+        + w.x * 0x28780865u + w.y * 0x80d0d707u + w.z * 0xf150b1a5u
+        + y.x * 0x7e67121du + y.y * 0x1b6bacc5u + y.z * 0x4d978925u
+        + bitcast<u32>(p.s0) * 0x70009581u;
     return f32(pcg_hash(pcg_hash(h)) >> 8u) * (1.0 / 16777216.0);
 }
 

@@ -44,25 +44,28 @@ pub const fn pcg_hash(x: u32) -> u32 {
     (w >> 22) ^ w
 }
 
-/// A uniform number in [0, 1) from `words`: their sum weighted by odd pseudo-random
-/// constants (the i-th is pcg_hash(i + 1) | 1), then two rounds of [`pcg_hash`]. The
+/// The weights of [`hash_unit`]'s words: odd pseudo-random constants, the i-th
+/// pcg_hash(i + 1) | 1 (`shaders/beam_estimate.wgsl` writes the first ten as literals).
+pub const HASH_WEIGHTS: [u32; 16] = {
+    let mut k = [0; 16];
+    let mut i = 0;
+    while i < 16 {
+        k[i] = pcg_hash(i as u32 + 1) | 1;
+        i += 1;
+    }
+    k
+};
+
+/// A uniform number in [0, 1) from `words`: their sum weighted by [`HASH_WEIGHTS`], then
+/// two rounds of [`pcg_hash`]. The
 /// products are independent of each other, so the hash costs about two rounds' latency:
 /// a chain of one round per word made the tube's beam estimate 16 % slower on cloud-hg,
 /// and constants not folded at compile time 6 %.
 #[inline(always)]
 pub fn hash_unit<const N: usize>(words: [u32; N]) -> f32 {
-    const K: [u32; 16] = {
-        let mut k = [0; 16];
-        let mut i = 0;
-        while i < 16 {
-            k[i] = pcg_hash(i as u32 + 1) | 1;
-            i += 1;
-        }
-        k
-    };
-    const { assert!(N <= K.len(), "hash_unit takes up to 16 words") };
+    const { assert!(N <= HASH_WEIGHTS.len(), "hash_unit takes up to 16 words") };
     let mut h = 0u32;
-    for (&w, &k) in words.iter().zip(&K) {
+    for (&w, &k) in words.iter().zip(&HASH_WEIGHTS) {
         h = h.wrapping_add(w.wrapping_mul(k));
     }
     (pcg_hash(pcg_hash(h)) >> 8) as f32 * (1.0 / (1u32 << 24) as f32)

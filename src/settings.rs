@@ -225,8 +225,8 @@ impl RenderSettings {
     }
 }
 
-/// The smallest |g| of a phase function from which the CPU's hybrid render takes the tube
-/// kernel. The line kernel's 1/sin(theta) tail is heaviest where the phase function's
+/// The smallest |g| of a phase function from which the hybrid render (CPU or GPU) takes
+/// the tube kernel. The line kernel's 1/sin(theta) tail is heaviest where the phase function's
 /// peak (at theta = 0 or pi, beams along the camera ray) multiplies it. At equal passes
 /// the tube took off the per-pixel / 4x4 noise: nothing with isotropic media (fog-box,
 /// smoke-grid), 10 % / 4 % at g = 0.3, 22 % / 11 % at 0.5 and 34 % / 19 % at 0.7

@@ -451,12 +451,7 @@ fn gpu_pair_rule_matches_cpu_on_edge_cases() {
     let Some(g) = gpu_or_skip("gpu_pair_rule_matches_cpu_on_edge_cases") else {
         return;
     };
-    let media = Media::new(vec![MediumDesc {
-        bounds: [Vec3::splat(-8.0), Vec3::splat(8.0)],
-        sigma_t: 0.5,
-        albedo: Vec3::new(0.8, 0.6, 0.4),
-        phase: Phase { g: 0.3 },
-    }]);
+    let media = one_pixel_fog(0.3);
     // One pixel looking down +x. The rule is the shader's `piece_radiance`, which beam
     // quads share; they are not drawn here, since the splat's camera clip (as on the CPU)
     // drops beams at the camera's depth, the t = 0 cases.
@@ -610,12 +605,7 @@ fn gpu_tube_matches_cpu_end_on() {
     let Some(g) = gpu_or_skip("gpu_tube_matches_cpu_end_on") else {
         return;
     };
-    let media = Media::new(vec![MediumDesc {
-        bounds: [Vec3::splat(-8.0), Vec3::splat(8.0)],
-        sigma_t: 0.5,
-        albedo: Vec3::new(0.8, 0.6, 0.4),
-        phase: Phase { g: 0.7 },
-    }]);
+    let media = one_pixel_fog(0.7);
     let mut est = one_pixel_estimator(g, &media);
     let ray = Ray::new(Vec3::ZERO, Vec3::X);
     let chords = media.chords(&ray);
@@ -670,6 +660,16 @@ fn gpu_tube_matches_cpu_end_on() {
     }
     eprintln!("{counted} of {checked} pairs counted");
     assert!(counted > 30 && counted < checked, "{counted} of {checked}");
+}
+
+/// The fog box around [`one_pixel_camera`] (16 m wide, sigma_t 0.5) with HG phase `g`.
+fn one_pixel_fog(g: f32) -> Media {
+    Media::new(vec![MediumDesc {
+        bounds: [Vec3::splat(-8.0), Vec3::splat(8.0)],
+        sigma_t: 0.5,
+        albedo: Vec3::new(0.8, 0.6, 0.4),
+        phase: Phase { g },
+    }])
 }
 
 /// One pixel looking down +x from the origin.

@@ -261,7 +261,7 @@ impl BeamMap {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimate::eq2::{crossing, kernel, term};
+    use crate::estimate::eq2::{crossing, kernel, pair, term};
     use crate::sampling::{uniform_sphere, Rng};
 
     /// With sigma_s f = 1 the estimate integrates the fluence along the camera segment;
@@ -362,16 +362,11 @@ mod tests {
                 .map(|b| {
                     let p = BeamPiece::whole(b);
                     let own = r * b.scale;
-                    let ch = crate::estimate::tube::piece_chord(&ray, &p, span, own);
-                    let Some(mut c) =
-                        crossing(ray.o, ray.d, Vec3::from(p.origin), Vec3::from(p.dir))
-                    else {
-                        return 0.0;
-                    };
-                    if !ch.counts(own) {
+                    let lines = (ray.o.into(), ray.d.into(), p.origin, p.dir);
+                    let (counts, c) = pair(BeamKernel::Tube, lines, span, (p.s0, p.s1), own);
+                    if !counts {
                         return 0.0;
                     }
-                    (c.lo, c.hi) = (ch.lo, ch.hi);
                     let term = pair_term(BeamKernel::Tube, &ray, (&p, &c), own, one, |_| 1.0);
                     term.0.x as f64
                 })

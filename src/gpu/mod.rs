@@ -213,6 +213,17 @@ mod tests {
     use crate::estimate::eq2::BeamPiece;
     use std::mem::{offset_of, size_of};
 
+    /// The tube's hash in the shader weighs its ten words by `sampling::HASH_WEIGHTS`,
+    /// written there as literals.
+    #[test]
+    fn shader_hash_weights_match() {
+        let body = &SHADER[SHADER.find("fn pair_u(").expect("pair_u in the shader")..];
+        let body = &body[..body.find("return").expect("its return")];
+        for k in &crate::sampling::HASH_WEIGHTS[..10] {
+            assert!(body.contains(&format!("{k:#010x}u")), "{k:#010x} in {body}");
+        }
+    }
+
     /// The shader parses and validates (naga, as wgpu does at pipeline creation), and every
     /// struct it shares with the CPU has the Rust `Pod` type's size and field offsets.
     #[test]
